@@ -1,0 +1,188 @@
+"""Physics tests of the plants against analytic or independent numerical solutions."""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from train_envs.plants import ActuatorParams, PointMassTrain, TrainPlant
+from train_envs.trains import CouplerParams, TrainParams, get_train
+
+
+def _plain_train(**kw) -> TrainParams:
+    base = dict(
+        name="test", mass_kg=400e3, davis_a_N=0.0, davis_b_Ns_per_m=0.0, davis_c_Ns2_per_m2=0.0,
+        max_traction_force_N=1e7, max_brake_force_N=1e7,
+    )
+    base.update(kw)
+    return TrainParams(**base)
+
+
+def test_coasting_matches_davis_ode():
+    """Coasting on level track: v(t) against an independent RK45 solve, rel. error < 1e-4."""
+    tr = _plain_train(davis_a_N=4000.0, davis_b_Ns_per_m=60.0, davis_c_Ns2_per_m2=8.0,
+                      rotating_mass_factor=0.08)
+    plant = TrainPlant(tr, None, n_cars=1, dt_sim_s=0.05)
+    plant.reset(0.0, 30.0)
+    ts, vs, ss = [0.0], [30.0], [0.0]
+    for _ in range(100):
+        plant.step(0.0, 1.0)
+        ts.append(plant.t)
+        vs.append(plant.v)
+        ss.append(plant.s)
+    me = tr.mass_kg * 1.08
+
+    def rhs(t, y):
+        v = y[1]
+        return [v, -(4000.0 + 60.0 * v + 8.0 * v * v) / me]
+
+    ref = solve_ivp(rhs, (0, 100), [0.0, 30.0], t_eval=ts, rtol=1e-12, atol=1e-12, method="DOP853")
+    np.testing.assert_allclose(vs, ref.y[1], rtol=1e-4)
+    np.testing.assert_allclose(ss[1:], ref.y[0][1:], rtol=1e-4)
+    assert vs[-1] < 28.0  # it really decelerated
+
+
+def test_constant_braking_stops_at_v2_over_2a():
+    tr = _plain_train()
+    a, v0 = 0.8, 25.0
+    plant = TrainPlant(tr, None, n_cars=1, dt_sim_s=0.01)
+    plant.reset(0.0, v0, u0=-tr.mass_kg * a)
+    while not plant.stopped:
+        plant.step(-tr.mass_kg * a, 0.2)
+    expected = v0**2 / (2 * a)
+    assert plant.stopped and plant.v == 0.0
+    assert abs(plant.s - expected) / expected < 0.005
+    assert abs(plant.s - expected) < 1e-3  # in fact far better than 0.5 %
+
+
+def test_lag_dead_time_step_response_is_fopdt():
+    """Force response to a command step = first-order-plus-dead-time response (001 eq. 1)."""
+    tr = _plain_train()
+    tau, td = 0.4, 1.0
+    plant = PointMassTrain(tr, None, tau_s=tau, dead_time_s=td, dt_sim_s=0.01)
+    plant.reset(0.0, 30.0, u0=0.0)
+    f_cmd = -2e5
+    t, f = [], []
+    for _ in range(400):
+        plant.step(f_cmd, 0.01)
+        t.append(plant.t)
+        f.append(plant.force_total)
+    t = np.array(t)
+    # the command issued at t=0 reaches the lag input at T_d
+    expected = np.where(t > td, f_cmd * (1 - np.exp(-(t - td) / tau)), 0.0)
+    np.testing.assert_allclose(f, expected, atol=1e-6 * abs(f_cmd))
+
+
+def _two_car(damping=0.0):
+    m = 64.8e3
+    return _plain_train(mass_kg=2 * m, n_cars=2,
+                        coupler=CouplerParams(stiffness_N_per_m=1e7, damping_Ns_per_m=damping))
+
+
+def test_undamped_coupler_energy_and_frequency_at_control_period():
+    """Two cars, k = 1e7 N/m, 64.8 t: energy kept within 1 % over 60 s with a 0.2 s step,
+    and the deformation follows (Δv/ω) sin(ω t) with ω = sqrt(2k/m)."""
+    tr = _two_car()
+    plant = TrainPlant(tr, None, dt_sim_s=0.2)  # step = control period of paper 000 (0.2 s)
+    dv = 0.05
+    plant.reset(0.0, 10.0, speeds_mps=[10.0 + dv, 10.0])
+    e0 = plant.mechanical_energy_J()
+    omega = math.sqrt(2 * 1e7 / 64.8e3)
+    defs, ts, energies = [], [], []
+    for _ in range(300):
+        plant.step(0.0, 0.2)
+        defs.append(plant.coupler_deformations()[0])
+        ts.append(plant.t)
+        energies.append(plant.mechanical_energy_J())
+    assert max(abs(e - e0) for e in energies) / e0 < 0.01
+    np.testing.assert_allclose(defs, dv / omega * np.sin(omega * np.array(ts)), atol=1e-6 * dv / omega * 1e3)
+    # an independent frequency estimate from a fine-step run (zero crossings)
+    fine = TrainPlant(tr, None, dt_sim_s=0.001)
+    fine.reset(0.0, 10.0, speeds_mps=[10.0 + dv, 10.0])
+    x = []
+    for _ in range(20000):
+        fine.step(0.0, 0.001)
+        x.append(fine.coupler_deformations()[0])
+    x = np.array(x)
+    crossings = np.nonzero(np.diff(np.sign(x)) != 0)[0]
+    period = 2 * np.mean(np.diff(crossings)) * 0.001
+    assert abs(2 * math.pi / period - omega) / omega < 2e-3
+
+
+def test_damped_coupler_dissipates():
+    tr = _two_car(damping=5e4)
+    plant = TrainPlant(tr, None, dt_sim_s=0.05)
+    plant.reset(0.0, 10.0, speeds_mps=[10.05, 10.0])
+    e0 = plant.mechanical_energy_J()
+    for _ in range(100):
+        plant.step(0.0, 0.2)
+    assert plant.mechanical_energy_J() < e0
+    assert abs(plant.coupler_deformations()[0]) < 1e-6
+
+
+def test_steady_cruise_each_car_force_equals_its_resistance():
+    """002 eq. (4): at equilibrium u_i equals car i's resistance (aero on the lead car)."""
+    tr = get_train("paper002_crh3")
+    plant = TrainPlant(tr, None, dt_sim_s=0.05, input_mode="per_car")
+    v = 50.0
+    forces = plant.ca + plant.cb * v + plant.cc * v * v
+    assert forces[0] > forces[1]  # lead car carries the aerodynamic drag
+    plant.reset(0.0, v, u0=forces)
+    for _ in range(200):
+        plant.step(forces, 0.5)
+    np.testing.assert_allclose(plant.speeds, v, atol=1e-8)
+    np.testing.assert_allclose(plant.coupler_forces(), 0.0, atol=1e-3)
+
+
+def test_second_order_actuator_settles_to_command():
+    tr = get_train("paper003_shinkansen")
+    act = ActuatorParams(order=2, omega_n_radps=2.0, zeta=0.8)
+    plant = TrainPlant(tr, None, actuator=act, dt_sim_s=0.05, input_mode="per_car")
+    plant.reset(0.0, 40.0)
+    cmd = np.full(8, 2e4)
+    for _ in range(100):
+        plant.step(cmd, 0.5)
+    np.testing.assert_allclose(plant.forces, cmd, rtol=1e-6)
+
+
+def test_gradient_force_decelerates_as_mg_theta():
+    tr = _plain_train()
+    plant = TrainPlant(tr, lambda s: np.full_like(np.asarray(s, float), 10.0), n_cars=1, dt_sim_s=0.01)
+    plant.reset(0.0, 20.0)
+    plant.step(0.0, 1.0)
+    assert plant.v == pytest.approx(20.0 - 9.81 * 0.010, rel=1e-9)
+
+
+def test_envelope_saturates_command():
+    tr = replace(_plain_train(), max_traction_force_N=1e5, max_traction_power_W=1e6)
+    plant = TrainPlant(tr, None, n_cars=1, dt_sim_s=0.01)
+    plant.reset(0.0, 20.0)
+    plant.step(1e6, 0.01)
+    assert plant.saturated
+    assert plant.force_total == pytest.approx(5e4)  # P/v = 1e6/20
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(mass_kg=-1.0), "mass_kg"),
+        (dict(davis_a_N=float("nan")), "davis_a_N"),
+        (dict(rotating_mass_factor=2.0), "rotating_mass_factor"),
+    ],
+)
+def test_bad_train_parameters_name_the_field(kwargs, field):
+    with pytest.raises(ValueError, match=field):
+        _plain_train(**kwargs)
+
+
+def test_nan_command_and_bad_step_rejected():
+    plant = TrainPlant(_plain_train(), None, n_cars=1, dt_sim_s=0.01)
+    plant.reset(0.0, 10.0)
+    with pytest.raises(ValueError, match="u_N"):
+        plant.step(float("nan"), 0.01)
+    with pytest.raises(ValueError, match="dt_sim_s"):
+        plant.step(0.0, 0.015)
+    with pytest.raises(ValueError, match="dead_time_s"):
+        PointMassTrain(_plain_train(), None, dead_time_s=0.015, dt_sim_s=0.01)

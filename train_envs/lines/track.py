@@ -1,0 +1,771 @@
+"""Track (line) description: stops, speed limits, gradients and curves, in SI units.
+
+A :class:`Track` is the static infrastructure seen by a point-mass train at position
+``s`` [m] along the line:
+
+* **stops** ``stops_m``: strictly increasing, first 0; the last stop is the track length.
+* **speed-limit sections**: start positions [m] and limits [m/s]; a limit holds from its
+  start position (inclusive) to the next start position (exclusive).
+* **gradient sections**: start positions [m] and gradients [permil = m per km], uphill
+  positive.
+* **curve sections**: start positions [m], radius at start and radius at end [m]
+  (signed: positive = right-hand, negative = left-hand, ``inf`` = straight). Equal radii
+  mean a circular arc; different radii mean a clothoid (transition curve) whose
+  *curvature* ``1/R`` varies linearly with distance between the two values.
+
+The section conventions are those of TTOBench (Kouzoupis, Pendharkar, Corman 2023, see
+``train_envs/data/TTOBench/tracks/README.md``); km/h is only used at the JSON boundary.
+
+The position lookups (``speed_limit_at`` etc.) are called every simulation sub-step, so
+they use binary search on arrays precomputed in ``__post_init__``: ``bisect`` on Python
+lists for scalar arguments, ``np.searchsorted`` for arrays. Positions outside
+``[0, length_m]`` are clamped to the first / last section.
+
+Curve resistance is converted into an equivalent gradient with the standard empirical
+formula ``w_c = 600 / R`` [N/kN, i.e. permil], ``R`` in m, see
+:meth:`Track.curve_resistance_permil_at`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from bisect import bisect_right
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from train_envs.trains import KMH, G
+from train_envs.validation import check_increasing, check_range
+
+if TYPE_CHECKING:
+    from importlib.resources.abc import Traversable
+
+    import pandas as pd
+
+FloatOrArray = float | np.ndarray
+
+#: Curve-resistance coefficient of the empirical formula ``w_c = A / R`` [N/kN * m].
+CURVE_RESISTANCE_COEFF = 600.0
+#: Radii above this [m] are treated as straight track for curve resistance.
+CURVE_RESISTANCE_MAX_RADIUS_M = 10_000.0
+#: Largest gradient magnitude accepted by the validation [permil] (adhesion railways).
+MAX_ABS_GRADIENT_PERMIL = 100.0
+
+
+def _as_array(value: Any, name: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a sequence of numbers, got {value!r}") from exc
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D sequence, got shape {arr.shape}")
+    return arr
+
+
+def _frozen(arr: np.ndarray) -> np.ndarray:
+    arr = np.array(arr, dtype=float)
+    arr.setflags(write=False)
+    return arr
+
+
+def _curvature(radius: np.ndarray) -> np.ndarray:
+    """Signed curvature ``1/R`` [1/m]; ``R = ±inf`` gives 0."""
+    with np.errstate(divide="ignore"):
+        return np.where(np.isinf(radius), 0.0, 1.0 / radius)
+
+
+def _radius(curvature: float) -> float:
+    return math.inf if curvature == 0.0 else 1.0 / curvature
+
+
+def _radii(curvature: np.ndarray) -> np.ndarray:
+    """Signed radius [m] of each curvature; 0 gives ``inf``."""
+    out = np.full(curvature.shape, math.inf)
+    nz = curvature != 0.0
+    out[nz] = 1.0 / curvature[nz]
+    return out
+
+
+@dataclass(frozen=True, eq=False, repr=False)
+class Track:
+    """Static description of a line, SI units (see the module docstring for conventions).
+
+    Attributes:
+        name: identifier (catalogue name or TTOBench id).
+        stops_m: stop positions [m], strictly increasing, first 0; ``stops_m[-1]`` is the
+            track length.
+        speed_limit_positions_m, speed_limits_mps: section starts [m] (first 0) and the
+            speed limit of each section [m/s] (> 0).
+        gradient_positions_m, gradients_permil: section starts [m] (first 0) and the
+            gradient of each section [permil], uphill positive. Empty = level track.
+        curve_positions_m, curve_radius_start_m, curve_radius_end_m: section starts [m]
+            (first 0), signed radii at the start and end of each section [m]; ``inf`` for
+            straight track; different radii = clothoid with linearly varying curvature.
+            Empty = straight track.
+        source: where the data come from and what was assumed.
+
+    All section positions must be strictly increasing, start at 0 and lie before the
+    last stop. Arrays are stored as read-only copies, so a ``Track`` is immutable and can
+    be shared (the catalogue caches them).
+    """
+
+    name: str
+    stops_m: np.ndarray
+    speed_limit_positions_m: np.ndarray
+    speed_limits_mps: np.ndarray
+    gradient_positions_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    gradients_permil: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    curve_positions_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    curve_radius_start_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    curve_radius_end_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    source: str = ""
+
+    # precomputed lookup tables (not part of the constructor)
+    _sl_pos: list[float] = field(init=False, repr=False, compare=False)
+    _sl_val: list[float] = field(init=False, repr=False, compare=False)
+    _gr_pos: list[float] = field(init=False, repr=False, compare=False)
+    _gr_val: list[float] = field(init=False, repr=False, compare=False)
+    _cv_pos: list[float] = field(init=False, repr=False, compare=False)
+    _cv_end: list[float] = field(init=False, repr=False, compare=False)
+    _cv_k0: list[float] = field(init=False, repr=False, compare=False)
+    _cv_k1: list[float] = field(init=False, repr=False, compare=False)
+    _cv_end_arr: np.ndarray = field(init=False, repr=False, compare=False)
+    _cv_k0_arr: np.ndarray = field(init=False, repr=False, compare=False)
+    _cv_k1_arr: np.ndarray = field(init=False, repr=False, compare=False)
+    _stops: list[float] = field(init=False, repr=False, compare=False)
+
+    # ------------------------------------------------------------------ validation
+    def __post_init__(self) -> None:
+        try:
+            self._validate_and_freeze()
+        except ValueError as exc:
+            raise ValueError(f"{exc} [track {self.name!r}]") from None
+
+    def _set(self, name: str, value: Any) -> None:
+        object.__setattr__(self, name, value)
+
+    def _check_sections(self, label: str, positions: np.ndarray, length: float) -> np.ndarray:
+        pos = check_increasing(f"track.{label} positions", positions)
+        if pos.size == 0:
+            raise ValueError(f"track.{label} must have at least one section")
+        if pos[0] != 0.0:
+            raise ValueError(f"track.{label} positions must start at 0, got {pos[0]}")
+        if pos[-1] >= length:
+            raise ValueError(
+                f"track.{label} positions must lie in [0, length_m={length}), "
+                f"got last position {pos[-1]}"
+            )
+        return pos
+
+    def _validate_and_freeze(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"track.name must be a non-empty string, got {self.name!r}")
+        stops = check_increasing("track.stops_m", _as_array(self.stops_m, "track.stops_m"))
+        if stops.size < 2:
+            raise ValueError(f"track.stops_m needs at least 2 stops, got {stops.size}")
+        if stops[0] != 0.0:
+            raise ValueError(f"track.stops_m must start at 0, got {stops[0]}")
+        length = float(stops[-1])  # > 0 because strictly increasing from 0
+
+        # speed limits
+        sl_pos = self._check_sections(
+            "speed_limits", _as_array(self.speed_limit_positions_m, "track.speed_limits"), length
+        )
+        sl_val = _as_array(self.speed_limits_mps, "track.speed_limits values")
+        if sl_val.size != sl_pos.size:
+            raise ValueError(
+                f"track.speed_limits values must have one entry per position "
+                f"({sl_pos.size}), got {sl_val.size}"
+            )
+        for i, v in enumerate(sl_val):
+            check_range(
+                f"track.speed_limits values[{i}] (m/s)", v, 0.0, math.inf, low_inclusive=False
+            )
+
+        # gradients (empty = level)
+        gr_pos_in = _as_array(self.gradient_positions_m, "track.gradients positions")
+        gr_val = _as_array(self.gradients_permil, "track.gradients values")
+        if gr_pos_in.size == 0 and gr_val.size == 0:
+            gr_pos_in, gr_val = np.zeros(1), np.zeros(1)
+        gr_pos = self._check_sections("gradients", gr_pos_in, length)
+        if gr_val.size != gr_pos.size:
+            raise ValueError(
+                f"track.gradients values must have one entry per position "
+                f"({gr_pos.size}), got {gr_val.size}"
+            )
+        for i, g in enumerate(gr_val):
+            check_range(
+                f"track.gradients values[{i}] (permil)",
+                g,
+                -MAX_ABS_GRADIENT_PERMIL,
+                MAX_ABS_GRADIENT_PERMIL,
+            )
+
+        # curves (empty = straight)
+        cv_pos_in = _as_array(self.curve_positions_m, "track.curvatures positions")
+        r0 = _as_array(self.curve_radius_start_m, "track.curvatures radius_start")
+        r1 = _as_array(self.curve_radius_end_m, "track.curvatures radius_end")
+        if cv_pos_in.size == 0 and r0.size == 0 and r1.size == 0:
+            cv_pos_in, r0, r1 = np.zeros(1), np.full(1, math.inf), np.full(1, math.inf)
+        cv_pos = self._check_sections("curvatures", cv_pos_in, length)
+        for label, r in (("radius_start", r0), ("radius_end", r1)):
+            if r.size != cv_pos.size:
+                raise ValueError(
+                    f"track.curvatures {label} must have one entry per position "
+                    f"({cv_pos.size}), got {r.size}"
+                )
+            bad = np.nonzero(np.isnan(r) | (r == 0.0))[0]
+            if bad.size:
+                i = int(bad[0])
+                raise ValueError(
+                    f"track.curvatures {label}[{i}] must be a non-zero radius in m "
+                    f"(inf for straight track), got {r[i]}"
+                )
+
+        for name, arr in (
+            ("stops_m", stops),
+            ("speed_limit_positions_m", sl_pos),
+            ("speed_limits_mps", sl_val),
+            ("gradient_positions_m", gr_pos),
+            ("gradients_permil", gr_val),
+            ("curve_positions_m", cv_pos),
+            ("curve_radius_start_m", r0),
+            ("curve_radius_end_m", r1),
+        ):
+            self._set(name, _frozen(arr))
+
+        cv_end = np.append(cv_pos[1:], length)
+        self._set("_stops", stops.tolist())
+        self._set("_sl_pos", sl_pos.tolist())
+        self._set("_sl_val", sl_val.tolist())
+        self._set("_gr_pos", gr_pos.tolist())
+        self._set("_gr_val", gr_val.tolist())
+        self._set("_cv_pos", cv_pos.tolist())
+        self._set("_cv_end", cv_end.tolist())
+        k0, k1 = _curvature(r0), _curvature(r1)
+        self._set("_cv_k0", k0.tolist())
+        self._set("_cv_k1", k1.tolist())
+        self._set("_cv_end_arr", _frozen(cv_end))
+        self._set("_cv_k0_arr", _frozen(k0))
+        self._set("_cv_k1_arr", _frozen(k1))
+
+    def __repr__(self) -> str:
+        return (
+            f"Track(name={self.name!r}, length_m={self.length_m:g}, stops={len(self._stops)}, "
+            f"speed_limit_sections={len(self._sl_pos)}, gradient_sections={len(self._gr_pos)}, "
+            f"curve_sections={len(self._cv_pos)})"
+        )
+
+    # ------------------------------------------------------------------ basics
+    @property
+    def length_m(self) -> float:
+        """Track length [m] = position of the last stop."""
+        return self._stops[-1]
+
+    @property
+    def station_pairs(self) -> list[tuple[float, float]]:
+        """Consecutive stop pairs ``(from_m, to_m)``: the station-to-station runs."""
+        return list(zip(self._stops[:-1], self._stops[1:], strict=True))
+
+    def breakpoints_m(self) -> np.ndarray:
+        """Sorted union of all section starts and stops [m] (where any property changes)."""
+        return np.unique(
+            np.concatenate(
+                (
+                    self.stops_m,
+                    self.speed_limit_positions_m,
+                    self.gradient_positions_m,
+                    self.curve_positions_m,
+                )
+            )
+        )
+
+    # ------------------------------------------------------------------ lookups
+    def speed_limit_at(self, s: FloatOrArray) -> FloatOrArray:
+        """Speed limit [m/s] at position ``s`` [m] (a section starts at its position)."""
+        if isinstance(s, float | int):
+            i = bisect_right(self._sl_pos, s) - 1
+            return self._sl_val[i if i > 0 else 0]
+        i = np.searchsorted(self.speed_limit_positions_m, np.asarray(s, float), side="right")
+        return self.speed_limits_mps[np.maximum(i - 1, 0)]
+
+    def gradient_permil_at(self, s: FloatOrArray) -> FloatOrArray:
+        """Gradient [permil] at position ``s`` [m], uphill positive."""
+        if isinstance(s, float | int):
+            i = bisect_right(self._gr_pos, s) - 1
+            return self._gr_val[i if i > 0 else 0]
+        i = np.searchsorted(self.gradient_positions_m, np.asarray(s, float), side="right")
+        return self.gradients_permil[np.maximum(i - 1, 0)]
+
+    def curvature_at(self, s: FloatOrArray) -> FloatOrArray:
+        """Signed curvature ``1/R`` [1/m] at ``s`` [m] (positive = right-hand curve).
+
+        Within a section the curvature varies linearly from ``1/R_start`` at the section
+        start to ``1/R_end`` at the next section start (or the track end): constant on an
+        arc, a clothoid when the radii differ.
+        """
+        if isinstance(s, float | int):
+            i = bisect_right(self._cv_pos, s) - 1
+            if i < 0:
+                i = 0
+            k0 = self._cv_k0[i]
+            k1 = self._cv_k1[i]
+            if k0 == k1:
+                return k0
+            p = self._cv_pos[i]
+            frac = (s - p) / (self._cv_end[i] - p)
+            frac = 0.0 if frac < 0.0 else (1.0 if frac > 1.0 else frac)
+            return k0 + (k1 - k0) * frac
+        x = np.asarray(s, float)
+        i = np.maximum(np.searchsorted(self.curve_positions_m, x, side="right") - 1, 0)
+        return self._curvature_in_section(i, x)
+
+    def _curvature_in_section(self, i: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Curvature of curve section(s) ``i`` evaluated at ``x`` (clamped to the section)."""
+        p = self.curve_positions_m[i]
+        frac = np.clip((x - p) / (self._cv_end_arr[i] - p), 0.0, 1.0)
+        k0 = self._cv_k0_arr[i]
+        return k0 + (self._cv_k1_arr[i] - k0) * frac
+
+    def curve_resistance_permil_at(self, s: FloatOrArray) -> FloatOrArray:
+        """Curve resistance per unit weight [N/kN = permil] at ``s`` [m].
+
+        Standard empirical formula ``w_c = 600 / R`` with ``R`` the curve radius in m
+        (``|R|``: left- and right-hand curves resist alike), as used in the Chinese train
+        traction calculation regulations (TB/T 1407) and of the same form as the widely
+        used Röckl-type ``k / R`` curve-resistance formulas. Radii above 10 km (including
+        straight track) give 0. The train is treated as a point mass (the whole train is
+        on the curve at ``s``).
+        """
+        k = self.curvature_at(s)
+        if isinstance(k, float):
+            ak = abs(k)
+            return CURVE_RESISTANCE_COEFF * ak if ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0 else 0.0
+        ak = np.abs(k)
+        return np.where(ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0, CURVE_RESISTANCE_COEFF * ak, 0.0)
+
+    def equivalent_gradient_permil_at(self, s: FloatOrArray) -> FloatOrArray:
+        """Gradient plus curve resistance as an equivalent gradient [permil].
+
+        ``i_eq = i + 600 / |R|`` (``R`` in m, ignored above 10 km), see
+        :meth:`curve_resistance_permil_at`.
+        """
+        return self.gradient_permil_at(s) + self.curve_resistance_permil_at(s)
+
+    def gradient_force_N(
+        self, s: FloatOrArray, mass_kg: float, *, include_curves: bool = True
+    ) -> FloatOrArray:
+        """Track force opposing the motion [N] on a train of (static) mass ``mass_kg``.
+
+        ``F = m g sin(atan(i / 1000)) + m g w_c / 1000`` with ``i`` the gradient [permil]
+        (exact slope angle, not the small-angle ``m g i / 1000``; the difference is below
+        0.1 % for |i| < 40 permil) and ``w_c`` the curve resistance [N/kN] of
+        :meth:`curve_resistance_permil_at`. Positive uphill / in curves, negative
+        downhill. Pass ``include_curves=False`` for the gradient term alone. ``g = 9.81``.
+        """
+        if isinstance(s, float | int):
+            i = self.gradient_permil_at(s)
+            f = mass_kg * G * math.sin(math.atan(i * 1e-3))
+            if include_curves:
+                f += mass_kg * G * 1e-3 * self.curve_resistance_permil_at(s)
+            return f
+        x = np.asarray(s, float)
+        f = mass_kg * G * np.sin(np.arctan(self.gradient_permil_at(x) * 1e-3))
+        if include_curves:
+            f = f + mass_kg * G * 1e-3 * self.curve_resistance_permil_at(x)
+        return f
+
+    def next_stop_after(self, s: float, tol_m: float = 1e-6) -> float | None:
+        """First stop strictly beyond ``s + tol_m`` [m], or ``None`` past the last stop.
+
+        ``tol_m`` lets a train that halted a hair short of a stop look past it.
+        """
+        i = bisect_right(self._stops, s + tol_m)
+        return self._stops[i] if i < len(self._stops) else None
+
+    # ------------------------------------------------------------------ sections
+    def section(self, s_from: float, s_to: float, name: str | None = None) -> Track:
+        """Sub-track ``[s_from, s_to]`` re-based so that ``s_from`` becomes position 0.
+
+        Stops strictly inside the interval are kept; ``0`` and ``s_to - s_from`` become the
+        first and last stops. The sections active at ``s_from`` start at 0; a clothoid cut
+        by either end keeps its curvature (the cut ends get the radius at the cut).
+        """
+        s_from = check_range("section s_from", s_from, 0.0, self.length_m)
+        s_to = check_range("section s_to", s_to, 0.0, self.length_m)
+        if s_to <= s_from:
+            raise ValueError(f"section s_to ({s_to}) must be greater than s_from ({s_from})")
+        length = s_to - s_from
+
+        def cut(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """Indices of the kept sections and their re-based start positions."""
+            i0 = max(int(np.searchsorted(positions, s_from, side="right")) - 1, 0)
+            rebased = positions - s_from
+            inside = np.nonzero((rebased > 0.0) & (rebased < length))[0]
+            idx = np.concatenate(([i0], inside)).astype(int)
+            return idx, np.concatenate(([0.0], rebased[inside]))
+
+        stops_rel = self.stops_m - s_from
+        stops = np.concatenate(
+            ([0.0], stops_rel[(stops_rel > 0.0) & (stops_rel < length)], [length])
+        )
+        sl_idx, sl_pos = cut(self.speed_limit_positions_m)
+        gr_idx, gr_pos = cut(self.gradient_positions_m)
+        cv_idx, cv_pos = cut(self.curve_positions_m)
+
+        r_start, r_end = [], []
+        for j in cv_idx:
+            p, e = self._cv_pos[j], self._cv_end[j]
+            k0, k1 = self._cv_k0[j], self._cv_k1[j]
+            a, b = max(p, s_from), min(e, s_to)
+            if k0 == k1:
+                ka, kb = k0, k1
+            else:
+                ka = k0 + (k1 - k0) * (a - p) / (e - p)
+                kb = k0 + (k1 - k0) * (b - p) / (e - p)
+            r_start.append(self.curve_radius_start_m[j] if a == p else _radius(ka))
+            r_end.append(self.curve_radius_end_m[j] if b == e else _radius(kb))
+
+        return Track(
+            name=name or f"{self.name}[{s_from:g}-{s_to:g}]",
+            stops_m=stops,
+            speed_limit_positions_m=sl_pos,
+            speed_limits_mps=self.speed_limits_mps[sl_idx],
+            gradient_positions_m=gr_pos,
+            gradients_permil=self.gradients_permil[gr_idx],
+            curve_positions_m=cv_pos,
+            curve_radius_start_m=np.array(r_start, float),
+            curve_radius_end_m=np.array(r_end, float),
+            source=f"section [{s_from:g} m, {s_to:g} m] of track {self.name!r}; {self.source}",
+        )
+
+    # ------------------------------------------------------------------ I/O
+    @classmethod
+    def from_ttobench(
+        cls, path_or_dict: str | os.PathLike[str] | Traversable | Mapping[str, Any]
+    ) -> Track:
+        """Build a track from a TTOBench track JSON file (path) or its parsed dictionary.
+
+        Speed limits are converted from km/h to m/s; ``"infinity"`` radii become ``inf``.
+        """
+        if isinstance(path_or_dict, Mapping):
+            data: Mapping[str, Any] = path_or_dict
+        elif hasattr(path_or_dict, "read_text") and not isinstance(path_or_dict, str | bytes):
+            data = json.loads(path_or_dict.read_text())  # type: ignore[union-attr]
+        else:
+            with open(path_or_dict, encoding="utf-8") as fh:
+                data = json.load(fh)
+        return _track_from_ttobench_dict(data)
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """Summary table: one row per homogeneous piece between consecutive breakpoints.
+
+        Columns: ``start_m``, ``end_m``, ``length_m``, ``v_limit_mps``, ``v_limit_kmh``,
+        ``gradient_permil``, ``radius_start_m``, ``radius_end_m`` (signed; ``inf`` =
+        straight; the radius at the piece ends), ``curve_resistance_permil`` (at the piece
+        midpoint), ``stop_at_start`` (a stop lies at ``start_m``).
+        """
+        import pandas as pd
+
+        bp = self.breakpoints_m()
+        start, end = bp[:-1], bp[1:]
+        mid = 0.5 * (start + end)
+        k_start = self.curvature_at(start)
+        sec = np.maximum(np.searchsorted(self.curve_positions_m, start, side="right") - 1, 0)
+        k_end = self._curvature_in_section(sec, end)  # the piece's own section at its end
+        v = self.speed_limit_at(start)
+        return pd.DataFrame(
+            {
+                "start_m": start,
+                "end_m": end,
+                "length_m": end - start,
+                "v_limit_mps": v,
+                "v_limit_kmh": v / KMH,
+                "gradient_permil": self.gradient_permil_at(start),
+                "radius_start_m": _radii(k_start),
+                "radius_end_m": _radii(k_end),
+                "curve_resistance_permil": self.curve_resistance_permil_at(mid),
+                "stop_at_start": np.isin(start, self.stops_m),
+            }
+        )
+
+
+# ---------------------------------------------------------------------- TTOBench
+_POSITION_UNITS = {"m": 1.0, "km": 1000.0}
+_VELOCITY_UNITS = {"km/h": KMH, "m/s": 1.0}
+
+
+def _unit_factor(
+    units: Mapping[str, Any], key: str, table: Mapping[str, float], what: str
+) -> float:
+    """Conversion factor to SI of ``units[key]`` (positions default to m)."""
+    unit = units.get(key, "m" if table is _POSITION_UNITS else None)
+    if unit not in table:
+        raise ValueError(
+            f"TTOBench track field {what!r}: unsupported {key} unit {unit!r}; "
+            f"expected one of {sorted(table)}"
+        )
+    return table[unit]
+
+
+def _rows(data: Mapping[str, Any], what: str, width: int) -> list[Sequence[Any]]:
+    entry = data.get(what)
+    if not isinstance(entry, Mapping) or "values" not in entry:
+        raise ValueError(f"TTOBench track field {what!r} must be an object with 'values'")
+    rows = entry["values"]
+    for i, row in enumerate(rows):
+        if not isinstance(row, Sequence) or len(row) != width:
+            raise ValueError(
+                f"TTOBench track field {what!r}: row {i} must have {width} entries, got {row!r}"
+            )
+    return list(rows)
+
+
+def _num(x: Any, what: str) -> float:
+    try:
+        return float(x)  # also parses "infinity" / "-infinity"
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"TTOBench track field {what!r}: {x!r} is not a number") from exc
+
+
+def _track_from_ttobench_dict(data: Mapping[str, Any]) -> Track:
+    meta = data.get("metadata", {})
+    name = str(meta.get("id", "ttobench_track"))
+
+    stops_entry = data.get("stops")
+    if not isinstance(stops_entry, Mapping) or "values" not in stops_entry:
+        raise ValueError("TTOBench track field 'stops' must be an object with 'values'")
+    stop_factor = _unit_factor({"position": stops_entry.get("unit", "m")}, "position",
+                               _POSITION_UNITS, "stops")
+    stops = [_num(x, "stops") * stop_factor for x in stops_entry["values"]]
+
+    sl_units = data.get("speed limits", {}).get("units", {})
+    sl_pf = _unit_factor(sl_units, "position", _POSITION_UNITS, "speed limits")
+    sl_vf = _unit_factor(sl_units, "velocity", _VELOCITY_UNITS, "speed limits")
+    sl = _rows(data, "speed limits", 2)
+
+    gr_pos: list[float] = []
+    gr_val: list[float] = []
+    if "gradients" in data:
+        g_units = data["gradients"].get("units", {})
+        g_pf = _unit_factor(g_units, "position", _POSITION_UNITS, "gradients")
+        slope = g_units.get("slope", "permil")
+        if slope != "permil":
+            raise ValueError(
+                f"TTOBench track field 'gradients': unsupported slope unit {slope!r}; "
+                "expected 'permil'"
+            )
+        for row in _rows(data, "gradients", 2):
+            gr_pos.append(_num(row[0], "gradients") * g_pf)
+            gr_val.append(_num(row[1], "gradients"))
+
+    cv_pos: list[float] = []
+    r0: list[float] = []
+    r1: list[float] = []
+    if "curvatures" in data:
+        c_units = data["curvatures"].get("units", {})
+        c_pf = _unit_factor(c_units, "position", _POSITION_UNITS, "curvatures")
+        for key in ("radius at start", "radius at end"):
+            _unit_factor(c_units, key, _POSITION_UNITS, "curvatures")
+        rf = _POSITION_UNITS[c_units.get("radius at start", "m")]
+        for row in _rows(data, "curvatures", 3):
+            cv_pos.append(_num(row[0], "curvatures") * c_pf)
+            r0.append(_num(row[1], "curvatures") * rf)
+            r1.append(_num(row[2], "curvatures") * rf)
+
+    source = (
+        f"TTOBench track {name} ({meta.get('library version', 'TTOBench')}, "
+        f"{meta.get('license', 'BSD 2-Clause License')}, created by "
+        f"{meta.get('created by', 'unknown')}); Kouzoupis, Pendharkar, Corman, "
+        "Operations Research Forum 4:67 (2023)"
+    )
+    return Track(
+        name=name,
+        stops_m=np.array(stops, float),
+        speed_limit_positions_m=np.array([_num(r[0], "speed limits") * sl_pf for r in sl]),
+        speed_limits_mps=np.array([_num(r[1], "speed limits") * sl_vf for r in sl]),
+        gradient_positions_m=np.array(gr_pos, float),
+        gradients_permil=np.array(gr_val, float),
+        curve_positions_m=np.array(cv_pos, float),
+        curve_radius_start_m=np.array(r0, float),
+        curve_radius_end_m=np.array(r1, float),
+        source=source,
+    )
+
+
+# ---------------------------------------------------------------------- paper lines
+def paper001_track() -> Track:
+    """Paper 001's test line: 400 m, stops at 0 and 400 m, limit 20 m/s.
+
+    Source: paper 001 (Liu, Xun, Gao, Yin, Acta Automatica Sinica 2022) simulation set-up:
+    gradient 12 permil on [0, 150] m, 28 permil on (150, 300) m and -6 permil on
+    [300, 400] m; the train cruises at 20 m/s and brakes to the stop at 400 m. Nothing is
+    assumed except that the 20 m/s cruise speed is also the line's speed limit and that
+    the line is straight.
+    """
+    return Track(
+        name="paper001",
+        stops_m=np.array([0.0, 400.0]),
+        speed_limit_positions_m=np.array([0.0]),
+        speed_limits_mps=np.array([20.0]),
+        gradient_positions_m=np.array([0.0, 150.0, 300.0]),
+        gradients_permil=np.array([12.0, 28.0, -6.0]),
+        source=(
+            "Paper 001 (Liu et al. 2022): 400 m, gradients 12 / 28 / -6 permil on "
+            "[0,150] / (150,300) / [300,400] m; limit = the 20 m/s cruise speed (assumed); "
+            "straight (assumed)."
+        ),
+    )
+
+
+def paper000_section_track() -> Track:
+    """ASSUMED urban section for paper 000's single-section experiments (3000 m).
+
+    Paper 000 (Wang, Xing, Wang, IEEE Access 2024) publishes its 6-car metro train but not
+    the single section's infrastructure; 45.8 m/s in the paper is the over-speed
+    protection speed, not a line limit. We assume a 3 km metro interstation: limit
+    100 km/h (27.8 m/s) with an 80 km/h (22.2 m/s) curve on [1200, 1800] m (R = 800 m with
+    50 m clothoids), and a varying slope profile within ±20 permil (3, 15, -2, -20, 5, -3
+    permil). The paper's 6-car train (about 1.08 m/s² at low speed) reaches a 100 km/h
+    cruise in about 30 s / 450 m, so the run has accelerate-cruise-brake phases.
+    """
+    kmh = KMH
+    return Track(
+        name="paper000_section",
+        stops_m=np.array([0.0, 3000.0]),
+        speed_limit_positions_m=np.array([0.0, 1200.0, 1800.0]),
+        speed_limits_mps=np.array([100.0, 80.0, 100.0]) * kmh,
+        gradient_positions_m=np.array([0.0, 400.0, 900.0, 1500.0, 2100.0, 2700.0]),
+        gradients_permil=np.array([3.0, 15.0, -2.0, -20.0, 5.0, -3.0]),
+        curve_positions_m=np.array([0.0, 1250.0, 1300.0, 1700.0, 1750.0]),
+        curve_radius_start_m=np.array([math.inf, math.inf, 800.0, 800.0, math.inf]),
+        curve_radius_end_m=np.array([math.inf, 800.0, 800.0, math.inf, math.inf]),
+        source=(
+            "ASSUMED urban section for paper 000 (Wang et al., IEEE Access 2024), which does "
+            "not publish one: 3000 m, 100 km/h with 80 km/h on [1200,1800] m around an "
+            "R = 800 m curve, gradients 3/15/-2/-20/5/-3 permil."
+        ),
+    )
+
+
+def paper000_multi_section_track() -> Track:
+    """Paper 000's multi-section line: stops at 0, 14687, 25279 and 33086 m.
+
+    Source: paper 000 (Wang, Xing, Wang, IEEE Access 2024) gives the station positions.
+    ASSUMED (not published): speed limits 140 km/h between stations, 120 km/h on the last
+    interstation, 80 km/h over the 600 m leaving the first station and approaching the last,
+    100 km/h through the intermediate station areas (±500 m); gradients within ±15 permil.
+    All limits stay below the paper's 45.8 m/s (165 km/h) over-speed protection.
+    """
+    kmh = KMH
+    sl = [
+        (0.0, 80.0),
+        (600.0, 140.0),
+        (14187.0, 100.0),
+        (15187.0, 140.0),
+        (24779.0, 100.0),
+        (25779.0, 120.0),
+        (32486.0, 80.0),
+    ]
+    gr = [
+        (0.0, 2.0),
+        (800.0, 8.0),
+        (3000.0, -4.0),
+        (5200.0, 12.0),
+        (6800.0, 0.0),
+        (9000.0, -10.0),
+        (11000.0, -3.0),
+        (13900.0, 1.5),
+        (15500.0, -6.0),
+        (18000.0, 6.0),
+        (21000.0, -15.0),
+        (22500.0, 4.0),
+        (24900.0, -1.5),
+        (25700.0, 10.0),
+        (28000.0, -8.0),
+        (30500.0, 3.0),
+        (32600.0, 0.0),
+    ]
+    return Track(
+        name="paper000_multi_section",
+        stops_m=np.array([0.0, 14687.0, 25279.0, 33086.0]),
+        speed_limit_positions_m=np.array([p for p, _ in sl]),
+        speed_limits_mps=np.array([v for _, v in sl]) * kmh,
+        gradient_positions_m=np.array([p for p, _ in gr]),
+        gradients_permil=np.array([g for _, g in gr]),
+        source=(
+            "Paper 000 (Wang et al., IEEE Access 2024): stops 0/14687/25279/33086 m. Speed "
+            "limits (80-140 km/h) and gradients (within ±15 permil) ASSUMED; straight."
+        ),
+    )
+
+
+def paper002_track() -> Track:
+    """Long level high-speed line for paper 002's speed-command tracking (70 km).
+
+    Source: paper 002 (Xu et al. 2019) tracks a time-indexed speed command (Table 2,
+    up to 70 m/s for 1200 s, about 62.75 km) and publishes no line. ASSUMED: 70 km,
+    level, straight, limit 80 m/s, stops only at both ends.
+    """
+    return Track(
+        name="paper002",
+        stops_m=np.array([0.0, 70_000.0]),
+        speed_limit_positions_m=np.array([0.0]),
+        speed_limits_mps=np.array([80.0]),
+        source=(
+            "ASSUMED line for paper 002 (Xu et al. 2019): 70 km level straight, limit 80 m/s "
+            "(the Table 2 command covers about 62.75 km in 1200 s)."
+        ),
+    )
+
+
+def paper003_track() -> Track:
+    """Long level high-speed line for paper 003's speed-command tracking (110 km).
+
+    Source: paper 003 (fuzzy constrained predictive control, Shinkansen data) tracks a
+    time-indexed command of 150-200 km/h for 2000 s (about 101 km, see
+    ``paper003_speed_command``) and publishes no line. ASSUMED: 110 km, level, straight,
+    limit 250 km/h (69.4 m/s), stops only at both ends.
+    """
+    return Track(
+        name="paper003",
+        stops_m=np.array([0.0, 110_000.0]),
+        speed_limit_positions_m=np.array([0.0]),
+        speed_limits_mps=np.array([250.0 * KMH]),
+        source=(
+            "ASSUMED line for paper 003: 110 km level straight, limit 250 km/h (the command, "
+            "150 -> 200 -> 170 km/h over 2000 s, covers about 101 km)."
+        ),
+    )
+
+
+def paper004_track() -> Track:
+    """Dalian Metro Line 12, Lüshun New Port -> Tieshan Town (2940 m), ASSUMED profile.
+
+    Source: paper 004 names the interstation and its length (2940 m) but publishes no
+    speed limits or gradients. ASSUMED: an 80 km/h line section with 60 km/h over the
+    first 250 m (turnouts at the terminus), 65 km/h through an R = 600 m curve on
+    [1350, 1850] m (50 m clothoids at both ends), 70 km/h over the last 300 m; gradients
+    2 / -12 / 8 / 24 / -6 / 2 permil (station platforms at 2 permil, all within ±30).
+    """
+    kmh = KMH
+    return Track(
+        name="paper004",
+        stops_m=np.array([0.0, 2940.0]),
+        speed_limit_positions_m=np.array([0.0, 250.0, 1350.0, 1850.0, 2640.0]),
+        speed_limits_mps=np.array([60.0, 80.0, 65.0, 80.0, 70.0]) * kmh,
+        gradient_positions_m=np.array([0.0, 300.0, 900.0, 1500.0, 2100.0, 2600.0]),
+        gradients_permil=np.array([2.0, -12.0, 8.0, 24.0, -6.0, 2.0]),
+        curve_positions_m=np.array([0.0, 1350.0, 1400.0, 1800.0, 1850.0]),
+        curve_radius_start_m=np.array([math.inf, math.inf, 600.0, 600.0, math.inf]),
+        curve_radius_end_m=np.array([math.inf, 600.0, 600.0, math.inf, math.inf]),
+        source=(
+            "Paper 004: Dalian Metro Line 12, Lushun New Port -> Tieshan Town, 2940 m. "
+            "Speed limits (60-80 km/h), gradients (within ±30 permil) and the R = 600 m "
+            "curve are ASSUMED (not published)."
+        ),
+    )

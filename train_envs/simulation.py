@@ -1,0 +1,273 @@
+"""The one closed-loop runner: plant + line + reference + controller, step by step.
+
+:class:`ClosedLoop` is used by everything that runs a train: :func:`simulate` (a whole
+episode → DataFrame + metrics), the Gymnasium envs (one env step = a few control
+steps, with parameters changed in between) and the tuners (through :func:`simulate`).
+It records one row per control period into preallocated arrays, so a failure part-way
+loses nothing: :class:`SimulationError` carries the partial result.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from train_envs.controllers.base import ControlContext, Controller, Observation
+from train_envs.metrics import episode_metrics
+from train_envs.scenarios import Scenario, build_plant
+
+#: controller info keys copied into the DataFrame when present (numeric only)
+INFO_COLUMNS = ("solve_time_s", "iterations", "slack_max", "fallback", "status_val", "triggered")
+
+
+@dataclass
+class SimulationResult:
+    """A finished (or partial) closed-loop run."""
+
+    df: pd.DataFrame
+    metrics: dict[str, float]
+    scenario: str
+    controller: str
+    params: dict[str, float] = field(default_factory=dict)
+    seed: int | None = None
+    wall_time_s: float = 0.0
+    error: str | None = None
+
+    def metrics_frame(self) -> pd.DataFrame:
+        return pd.DataFrame([{"scenario": self.scenario, "controller": self.controller, **self.metrics}])
+
+
+class SimulationError(RuntimeError):
+    """Raised when a run fails part-way; ``partial`` holds everything computed so far."""
+
+    def __init__(self, message: str, partial: SimulationResult) -> None:
+        super().__init__(message)
+        self.partial = partial
+
+
+class ClosedLoop:
+    """Stepwise closed loop of one scenario and one controller.
+
+    Usage::
+
+        loop = ClosedLoop(scenario, controller)
+        loop.reset(seed=0)
+        while not loop.done:
+            loop.step()
+        result = loop.result()
+    """
+
+    def __init__(self, scenario: Scenario, controller: Controller) -> None:
+        self.scenario = scenario
+        self.controller = controller
+        self.dt = scenario.dt_ctrl_s
+        self.n_max = int(math.ceil(scenario.t_max_s / self.dt)) + 2
+        self.plant = None
+        self.seed: int | None = None
+
+    # ------------------------------------------------------------------ setup
+    def reset(self, seed: int | None = None, *, scenario: Scenario | None = None) -> Observation:
+        if scenario is not None:
+            self.scenario = scenario
+            self.dt = scenario.dt_ctrl_s
+            self.n_max = int(math.ceil(scenario.t_max_s / self.dt)) + 2
+        sc = self.scenario
+        self.seed = seed
+        rng = np.random.default_rng(seed)
+        self.plant = build_plant(sc, rng)
+        self.ctx = sc.control_context()
+        self.controller.reset(self.ctx)
+        n_in = self.ctx.n_inputs
+        self.u_prev = np.asarray(sc.initial_command(), float).reshape(-1)
+        if self.u_prev.size != n_in:
+            self.u_prev = np.full(n_in, self.u_prev.sum() / n_in)
+        self.k = 0
+        self.done = False
+        self.terminated = False
+        self.truncated = False
+        self._alloc()
+        self._t_wall = time.perf_counter()
+        self.last_info: Mapping[str, Any] = {}
+        return self.observe()
+
+    def _alloc(self) -> None:
+        n, nc = self.n_max, self.plant.n
+        self._cols: dict[str, np.ndarray] = {
+            name: np.full(n, np.nan)
+            for name in (
+                "t_s", "s_m", "v_mps", "a_mps2", "v_ref_mps", "s_ref_m", "v_limit_mps",
+                "gradient_permil", "u_cmd_N", "u_N", "work_traction_J", "work_brake_J",
+                "saturated",
+            )
+        }
+        if nc > 1:
+            for i in range(nc):
+                self._cols[f"u{i + 1}_cmd_N"] = np.full(n, np.nan)
+            self._cols["coupler_force_max_N"] = np.full(n, np.nan)
+            self._cols["coupler_def_max_m"] = np.full(n, np.nan)
+        self._info_cols: dict[str, np.ndarray] = {}
+
+    def observe(self) -> Observation:
+        p = self.plant
+        return Observation(
+            t_s=p.t,
+            s_m=p.s,
+            v_mps=p.v,
+            a_mps2=p.accel,
+            u_prev_N=self.u_prev.copy(),
+            positions_m=p.positions,
+            speeds_mps=p.speeds,
+            forces_N=p.forces,
+        )
+
+    # ------------------------------------------------------------------- step
+    def step(self, u: np.ndarray | None = None) -> Mapping[str, Any]:
+        """Advance one control period with the controller's command (or ``u`` if given)."""
+        if self.done:
+            raise RuntimeError("episode is over: call reset()")
+        obs = self.observe()
+        if u is None:
+            u, info = self.controller.compute(obs)
+        else:
+            info = {}
+        u = np.asarray(u, dtype=float).reshape(-1)
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"controller {self.controller.name} returned a non-finite command {u}")
+        self.last_info = info
+        self._record(obs, u, info)
+        self.plant.step(u if u.size > 1 else u[0], self.dt)
+        self.u_prev = u
+        self.k += 1
+        self._check_done()
+        return info
+
+    def _record(self, obs: Observation, u: np.ndarray, info: Mapping[str, Any]) -> None:
+        k, sc, p, c = self.k, self.scenario, self.plant, self._cols
+        c["t_s"][k] = obs.t_s
+        c["s_m"][k] = obs.s_m
+        c["v_mps"][k] = obs.v_mps
+        c["a_mps2"][k] = obs.a_mps2
+        c["v_ref_mps"][k] = sc.reference.v_ref(obs.t_s, obs.s_m)
+        c["s_ref_m"][k] = sc.reference.s_ref(obs.t_s)
+        c["v_limit_mps"][k] = sc.speed_limit_at(obs.s_m)
+        c["gradient_permil"][k] = sc.gradient_at(obs.s_m)
+        c["u_cmd_N"][k] = float(np.sum(u))
+        c["u_N"][k] = float(np.sum(obs.forces_N))
+        c["work_traction_J"][k] = p.work_traction_J
+        c["work_brake_J"][k] = p.work_brake_J
+        c["saturated"][k] = float(p.saturated)
+        if p.n > 1:
+            per_car = u if u.size == p.n else u.sum() * p.share
+            for i in range(p.n):
+                c[f"u{i + 1}_cmd_N"][k] = per_car[i]
+            cf = p.coupler_forces()
+            cd = p.coupler_deformations()
+            c["coupler_force_max_N"][k] = cf[np.argmax(np.abs(cf))]
+            c["coupler_def_max_m"][k] = cd[np.argmax(np.abs(cd))]
+        for key in INFO_COLUMNS:
+            if key in info:
+                col = self._info_cols.get(key)
+                if col is None:
+                    col = self._info_cols[key] = np.full(self.n_max, np.nan)
+                col[k] = float(info[key])
+
+    def _check_done(self) -> None:
+        sc, p = self.scenario, self.plant
+        t = p.t
+        if sc.s_stop_m is not None:
+            if p.stopped and t > 2 * self.dt:
+                self.terminated = True
+            elif p.s > sc.s_stop_m + sc.overrun_m:
+                self.terminated = True
+        elif t >= sc.t_max_s - 1e-9:
+            self.terminated = True
+        if not self.terminated and (t >= sc.t_max_s - 1e-9 or self.k >= self.n_max - 1):
+            self.truncated = True
+        self.done = self.terminated or self.truncated
+
+    # ---------------------------------------------------------------- results
+    def dataframe(self) -> pd.DataFrame:
+        """Rows recorded so far, plus a final row with the state after the last step."""
+        k = self.k
+        data = {name: arr[:k].copy() for name, arr in self._cols.items()}
+        data.update({name: arr[:k].copy() for name, arr in self._info_cols.items()})
+        df = pd.DataFrame(data)
+        if k > 0 and self.plant is not None:
+            # final state row (after the last command was applied)
+            obs = self.observe()
+            last = {name: np.nan for name in df.columns}
+            last.update(
+                t_s=obs.t_s, s_m=obs.s_m, v_mps=obs.v_mps, a_mps2=obs.a_mps2,
+                v_ref_mps=self.scenario.reference.v_ref(obs.t_s, obs.s_m),
+                s_ref_m=self.scenario.reference.s_ref(obs.t_s),
+                v_limit_mps=self.scenario.speed_limit_at(obs.s_m),
+                gradient_permil=self.scenario.gradient_at(obs.s_m),
+                u_cmd_N=float(np.sum(self.u_prev)), u_N=float(np.sum(obs.forces_N)),
+                work_traction_J=self.plant.work_traction_J, work_brake_J=self.plant.work_brake_J,
+                saturated=0.0,
+            )
+            df = pd.concat([df, pd.DataFrame([last])], ignore_index=True)
+        return df
+
+    def metrics(self, df: pd.DataFrame | None = None) -> dict[str, float]:
+        df = self.dataframe() if df is None else df
+        sc, tr = self.scenario, self.scenario.train
+        return episode_metrics(
+            df,
+            dt_s=self.dt,
+            s_stop_m=sc.s_stop_m,
+            scheduled_time_s=sc.scheduled_time_s,
+            traction_efficiency=tr.traction_efficiency,
+            regen_efficiency=tr.regen_efficiency,
+            du_max_Nps=sc.du_max_Nps,
+        )
+
+    def result(self, error: str | None = None) -> SimulationResult:
+        df = self.dataframe()
+        metrics = self.metrics(df) if len(df) else {}
+        return SimulationResult(
+            df=df,
+            metrics=metrics,
+            scenario=self.scenario.name,
+            controller=self.controller.name,
+            params=self.controller.get_params(),
+            seed=self.seed,
+            wall_time_s=time.perf_counter() - self._t_wall,
+            error=error,
+        )
+
+
+def simulate(
+    scenario: Scenario | str,
+    controller: Controller | str,
+    *,
+    seed: int | None = 0,
+    params: Mapping[str, float] | None = None,
+) -> SimulationResult:
+    """Run one closed-loop episode and return its DataFrame and metrics.
+
+    ``scenario`` and ``controller`` may be names (see ``train-envs list``). If the run
+    fails part-way, :class:`SimulationError` is raised with the partial result attached.
+    """
+    from train_envs.controllers import make_controller
+    from train_envs.scenarios import get_scenario
+
+    sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
+    ctrl = make_controller(controller, sc) if isinstance(controller, str) else controller
+    if params:
+        ctrl.set_params(**params)
+    loop = ClosedLoop(sc, ctrl)
+    loop.reset(seed=seed)
+    try:
+        while not loop.done:
+            loop.step()
+    except Exception as exc:  # keep what was computed
+        partial = loop.result(error=f"{type(exc).__name__}: {exc}")
+        raise SimulationError(f"simulation failed at t={loop.plant.t:.2f} s: {exc}", partial) from exc
+    return loop.result()
