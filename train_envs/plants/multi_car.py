@@ -177,11 +177,20 @@ class TrainPlant:
             B[iFd, :] = (w**2) * np.eye(n)
         self.A, self.B = A, B
         self.nz = nz
-        self._integ = ETD2Integrator(A, B, self.h)
+        self._integ = ETD2Integrator(A, B, self.h, nonlinear_rows=iv)
+        self._zero_nl = np.zeros(n)
         self._offsets = np.arange(n) * self.spacing
+        self._mg = self.m * (G / 1000.0)
+        self._ca0, self._cb0, self._cc0 = float(self.ca[0]), float(self.cb[0]), float(self.cc[0])
+        self._mg0, self._m0 = float(self._mg[0]), float(self.m[0])
+        self._minv0 = 1.0 / float(self.m_inertial[0])
+        self._nl_buf = np.zeros(1)
 
     def _nonlinear(self, z: np.ndarray, t: float) -> np.ndarray:
+        """Nonlinear accelerations (rows of the speeds): −(Davis + gradient + w)/m'."""
         n = self.n
+        if n == 1 and self.davis_variation is None:
+            return self._nonlinear_single(z, t)
         v = z[n : 2 * n]
         av = np.abs(v)
         ca, cb, cc = self.ca, self.cb, self.cc
@@ -197,15 +206,30 @@ class TrainPlant:
         force = np.sign(v) * (ca + cb * av + cc * av * av)
         if self.gradient_permil is not None:
             x = z[:n] - self._offsets
-            force = force + self.m * (G / 1000.0) * self.gradient_permil(x)
+            force = force + self._mg * self.gradient_permil(x)
         if self.disturbances:
             w = 0.0
             for dist in self.disturbances:
                 w += dist.accel(t)
             force = force + self.m * w
-        out = np.zeros(self.nz)
-        out[n : 2 * n] = -force / self.m_inertial
-        return out
+        return -force / self.m_inertial
+
+    def _nonlinear_single(self, z: np.ndarray, t: float) -> np.ndarray:
+        """Scalar fast path of :meth:`_nonlinear` for the single-point train."""
+        v = float(z[1])
+        av = abs(v)
+        f = self._ca0 + self._cb0 * av + self._cc0 * av * av
+        f = f if v > 0 else (-f if v < 0 else 0.0)
+        if self.gradient_permil is not None:
+            f += self._mg0 * float(self.gradient_permil(float(z[0])))
+        if self.disturbances:
+            w = 0.0
+            for dist in self.disturbances:
+                w += dist.accel(t)
+            f += self._m0 * w
+        out = self._nl_buf
+        out[0] = -f * self._minv0
+        return out.copy()
 
     # ------------------------------------------------------------- interface
     def reset(
@@ -251,6 +275,7 @@ class TrainPlant:
         self.stopped = v0 <= 0.0
         self.work_traction_J = 0.0
         self.work_brake_J = 0.0
+        self._p_last = self._forces(z) * z[n : 2 * n] if self.actuator.order else w0 * z[n : 2 * n]
         self.last_command = w0.copy()
         self.saturated = False
 
@@ -311,19 +336,21 @@ class TrainPlant:
                 self.stopped = False
             else:
                 # held by the brakes: only the actuator states evolve
-                z_new = self._integ.step(z, w, self.t, lambda _z, _t: np.zeros(self.nz))
+                z_new = self._integ.step(z, w, self.t, lambda _z, _t: self._zero_nl)
                 z_new[:n] = z[:n]
                 z_new[n : 2 * n] = 0.0
                 self.z = z_new
                 self.t += h
+                self._p_last = np.zeros(n)
                 return
         z_new = self._integ.step(z, w, self.t, self._nonlinear)
         v_old = z[n]
         v_new = z_new[n]
-        F = self._forces(z)
-        F_new = self._forces(z_new)
-        vs, vs_new = z[n : 2 * n], z_new[n : 2 * n]
-        self._accumulate_work(F, F_new, vs, vs_new)
+        p1 = self._forces(z_new) * z_new[n : 2 * n]
+        p0 = self._p_last
+        self.work_traction_J += 0.5 * h * float(np.sum(np.maximum(p0, 0.0) + np.maximum(p1, 0.0)))
+        self.work_brake_J += 0.5 * h * float(np.sum(np.maximum(-p0, 0.0) + np.maximum(-p1, 0.0)))
+        self._p_last = p1
         if v_old > 0.0 and v_new <= 0.0:
             # interpolate the stop inside the sub-step (constant deceleration)
             frac = v_old / (v_old - v_new)
@@ -332,13 +359,6 @@ class TrainPlant:
             self.stopped = True
         self.z = z_new
         self.t += h
-
-    def _accumulate_work(self, F, F_new, v, v_new) -> None:
-        p0 = F * v
-        p1 = F_new * v_new
-        h = self.h
-        self.work_traction_J += 0.5 * h * float(np.sum(np.maximum(p0, 0) + np.maximum(p1, 0)))
-        self.work_brake_J += 0.5 * h * float(np.sum(np.maximum(-p0, 0) + np.maximum(-p1, 0)))
 
     def _forces(self, z: np.ndarray) -> np.ndarray:
         if self.actuator.order == 0:
@@ -385,8 +405,8 @@ class TrainPlant:
     @property
     def accel(self) -> float:
         """Lead-car acceleration [m/s²] from the full model right now."""
-        dz = self.A @ self.z + self.B @ self._w_now + self._nonlinear(self.z, self.t)
-        return 0.0 if self.stopped else float(dz[self.n])
+        dz = self.A @ self.z + self.B @ self._w_now
+        return 0.0 if self.stopped else float(dz[self.n] + self._nonlinear(self.z, self.t)[0])
 
     def coupler_deformations(self) -> np.ndarray:
         """Extension of each coupler beyond its rest length [m] (n−1 values)."""

@@ -1,0 +1,112 @@
+"""Command-line interface: ``train-envs list | simulate`` (later: tune, train, evaluate, reproduce)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+
+def _parse_params(items: list[str] | None) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ValueError(f"--param expects key=value, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = float(v)
+        except ValueError as exc:
+            raise ValueError(f"--param {k}: value {v!r} is not a number") from exc
+    return out
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from train_envs.controllers import list_controllers
+    from train_envs.lines import list_tracks
+    from train_envs.scenarios import SCENARIOS
+    from train_envs.trains import get_train, list_trains
+
+    what = args.what
+    if what in ("all", "scenarios"):
+        print("Scenarios:")
+        for name, fn in SCENARIOS.items():
+            doc = (fn.__doc__ or "").strip().splitlines()[0]
+            print(f"  {name:32s} {doc}")
+    if what in ("all", "controllers"):
+        print("Controllers:")
+        for name in list_controllers():
+            print(f"  {name}")
+    if what in ("all", "trains"):
+        print("Trains:")
+        for name in list_trains():
+            t = get_train(name)
+            print(f"  {name:24s} {t.mass_kg / 1e3:7.1f} t  {t.n_cars} car(s)  "
+                  f"v_max {t.max_speed_mps * 3.6:6.1f} km/h")
+    if what in ("all", "tracks"):
+        print("Tracks:")
+        for name in list_tracks():
+            print(f"  {name}")
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from train_envs.plotting import speed_distance_figure
+    from train_envs.scenarios import get_scenario
+    from train_envs.simulation import SimulationError, simulate
+
+    sc = get_scenario(args.scenario)
+    params = _parse_params(args.param)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = f"{sc.name}_{args.controller}"
+    try:
+        res = simulate(sc, args.controller, seed=args.seed, params=params)
+    except SimulationError as err:
+        err.partial.df.to_csv(out / f"{stem}_partial.csv", index=False)
+        print(f"error: {err}; partial run saved to {out / (stem + '_partial.csv')}", file=sys.stderr)
+        return 1
+    res.df.to_csv(out / f"{stem}.csv", index=False)
+    fig = speed_distance_figure(res.df, title=f"{sc.name} — {args.controller}", s_stop_m=sc.s_stop_m)
+    png = out / f"{stem}.png"
+    fig.savefig(png, dpi=120)
+    table = pd.Series(res.metrics, name="value").to_frame()
+    with pd.option_context("display.float_format", "{:.6g}".format):
+        print(f"Scenario {sc.name}, controller {args.controller}, seed {args.seed}, "
+              f"{len(res.df)} rows, {res.wall_time_s:.2f} s wall")
+        print(table.to_string())
+    print(f"wrote {png} and {out / (stem + '.csv')}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="train-envs", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+    pl = sub.add_parser("list", help="list scenarios, controllers, trains and tracks")
+    pl.add_argument("what", nargs="?", default="all",
+                    choices=["all", "scenarios", "controllers", "trains", "tracks"])
+    pl.set_defaults(func=cmd_list)
+    ps = sub.add_parser("simulate", help="run one closed-loop episode, print metrics, write a plot")
+    ps.add_argument("--scenario", default="paper001_stopping")
+    ps.add_argument("--controller", default="pid")
+    ps.add_argument("--param", action="append", metavar="KEY=VALUE",
+                    help="controller tuning parameter (repeatable)")
+    ps.add_argument("--seed", type=int, default=0)
+    ps.add_argument("--out", default="out", help="output folder for the CSV and PNG")
+    ps.set_defaults(func=cmd_simulate)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
