@@ -346,10 +346,13 @@ class TrainPlant:
         z_new = self._integ.step(z, w, self.t, self._nonlinear)
         v_old = z[n]
         v_new = z_new[n]
+        # trapezoidal integration of the traction (F v > 0) and braking (F v < 0) powers
         p1 = self._forces(z_new) * z_new[n : 2 * n]
         p0 = self._p_last
-        self.work_traction_J += 0.5 * h * float(np.sum(np.maximum(p0, 0.0) + np.maximum(p1, 0.0)))
-        self.work_brake_J += 0.5 * h * float(np.sum(np.maximum(-p0, 0.0) + np.maximum(-p1, 0.0)))
+        tot = p0 + p1
+        mag = abs(p0) + abs(p1)
+        self.work_traction_J += 0.25 * h * float((mag + tot).sum())
+        self.work_brake_J += 0.25 * h * float((mag - tot).sum())
         self._p_last = p1
         if v_old > 0.0 and v_new <= 0.0:
             # interpolate the stop inside the sub-step (constant deceleration)

@@ -1,0 +1,48 @@
+"""Fast piecewise-linear look-up of a track property for the integrator's hot path."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+
+class PiecewiseLinear:
+    """``f(s) = y0[i] + slope[i] (s − x[i])`` on ``[x[i], x[i+1])``, right-continuous.
+
+    Built by sampling a function that is constant or linear between ``breakpoints``
+    (a track's gradient is piecewise constant, a clothoid's curve resistance 600|κ|
+    piecewise linear), so the table reproduces it exactly at a fraction of the cost.
+    (Exception: where a clothoid crosses the 10 km radius cut-off of the curve
+    resistance, the table interpolates across the cut-off: error below 0.06 ‰ on the
+    shipped lines.)
+    """
+
+    def __init__(self, x: np.ndarray, y0: np.ndarray, slope: np.ndarray) -> None:
+        # a sentinel segment before the first breakpoint holds the first value, so the
+        # segment index is never negative and needs no clipping on the hot path
+        self.x = np.concatenate(([-1e30], np.asarray(x, dtype=float)))
+        self.y0 = np.concatenate(([float(y0[0])], np.asarray(y0, dtype=float)))
+        self.slope = np.concatenate(([0.0], np.asarray(slope, dtype=float)))
+
+    @classmethod
+    def from_function(
+        cls, f: Callable[[np.ndarray], np.ndarray], breakpoints: np.ndarray, end: float
+    ) -> PiecewiseLinear:
+        x = np.unique(np.asarray(breakpoints, dtype=float))
+        x = x[x < end]
+        right = np.append(x[1:], end)
+        y0 = np.asarray(f(x), dtype=float)
+        eps = 1e-7 * np.maximum(1.0, np.abs(right))
+        y1 = np.asarray(f(right - eps), dtype=float)
+        width = np.maximum(right - eps - x, 1e-12)
+        slope = (y1 - y0) / width
+        return cls(x, y0, slope)
+
+    def __call__(self, s):
+        if isinstance(s, float):
+            i = int(self.x.searchsorted(s, side="right")) - 1
+            return float(self.y0[i] + self.slope[i] * (s - self.x[i]))
+        s = np.asarray(s, dtype=float)
+        i = self.x.searchsorted(s, side="right") - 1
+        return self.y0[i] + self.slope[i] * (s - self.x[i])
