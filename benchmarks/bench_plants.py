@@ -48,8 +48,10 @@ def main() -> None:
     print("| scenario | cars | sub-steps/ctrl | control steps/s | sub-steps/s | µs/sub-step |")
     print("|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['scenario']} | {r['cars']} | {r['substeps_per_ctrl']} | "
-              f"{r['ctrl_steps_per_s']:.0f} | {r['substeps_per_s']:.0f} | {r['us_per_substep']:.1f} |")
+        print(
+            f"| {r['scenario']} | {r['cars']} | {r['substeps_per_ctrl']} | "
+            f"{r['ctrl_steps_per_s']:.0f} | {r['substeps_per_s']:.0f} | {r['us_per_substep']:.1f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -13,8 +13,13 @@ from train_envs.trains import CouplerParams, TrainParams, get_train
 
 def _plain_train(**kw) -> TrainParams:
     base = dict(
-        name="test", mass_kg=400e3, davis_a_N=0.0, davis_b_Ns_per_m=0.0, davis_c_Ns2_per_m2=0.0,
-        max_traction_force_N=1e7, max_brake_force_N=1e7,
+        name="test",
+        mass_kg=400e3,
+        davis_a_N=0.0,
+        davis_b_Ns_per_m=0.0,
+        davis_c_Ns2_per_m2=0.0,
+        max_traction_force_N=1e7,
+        max_brake_force_N=1e7,
     )
     base.update(kw)
     return TrainParams(**base)
@@ -22,8 +27,9 @@ def _plain_train(**kw) -> TrainParams:
 
 def test_coasting_matches_davis_ode():
     """Coasting on level track: v(t) against an independent RK45 solve, rel. error < 1e-4."""
-    tr = _plain_train(davis_a_N=4000.0, davis_b_Ns_per_m=60.0, davis_c_Ns2_per_m2=8.0,
-                      rotating_mass_factor=0.08)
+    tr = _plain_train(
+        davis_a_N=4000.0, davis_b_Ns_per_m=60.0, davis_c_Ns2_per_m2=8.0, rotating_mass_factor=0.08
+    )
     plant = TrainPlant(tr, None, n_cars=1, dt_sim_s=0.05)
     plant.reset(0.0, 30.0)
     ts, vs, ss = [0.0], [30.0], [0.0]
@@ -77,8 +83,11 @@ def test_lag_dead_time_step_response_is_fopdt():
 
 def _two_car(damping=0.0):
     m = 64.8e3
-    return _plain_train(mass_kg=2 * m, n_cars=2,
-                        coupler=CouplerParams(stiffness_N_per_m=1e7, damping_Ns_per_m=damping))
+    return _plain_train(
+        mass_kg=2 * m,
+        n_cars=2,
+        coupler=CouplerParams(stiffness_N_per_m=1e7, damping_Ns_per_m=damping),
+    )
 
 
 def test_undamped_coupler_energy_and_frequency_at_control_period():
@@ -97,7 +106,9 @@ def test_undamped_coupler_energy_and_frequency_at_control_period():
         ts.append(plant.t)
         energies.append(plant.mechanical_energy_J())
     assert max(abs(e - e0) for e in energies) / e0 < 0.01
-    np.testing.assert_allclose(defs, dv / omega * np.sin(omega * np.array(ts)), atol=1e-6 * dv / omega * 1e3)
+    np.testing.assert_allclose(
+        defs, dv / omega * np.sin(omega * np.array(ts)), atol=1e-6 * dv / omega * 1e3
+    )
     # an independent frequency estimate from a fine-step run (zero crossings)
     fine = TrainPlant(tr, None, dt_sim_s=0.001)
     fine.reset(0.0, 10.0, speeds_mps=[10.0 + dv, 10.0])
@@ -149,7 +160,9 @@ def test_second_order_actuator_settles_to_command():
 
 def test_gradient_force_decelerates_as_mg_theta():
     tr = _plain_train()
-    plant = TrainPlant(tr, lambda s: np.full_like(np.asarray(s, float), 10.0), n_cars=1, dt_sim_s=0.01)
+    plant = TrainPlant(
+        tr, lambda s: np.full_like(np.asarray(s, float), 10.0), n_cars=1, dt_sim_s=0.01
+    )
     plant.reset(0.0, 20.0)
     plant.step(0.0, 1.0)
     assert plant.v == pytest.approx(20.0 - 9.81 * 0.010, rel=1e-9)

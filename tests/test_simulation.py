@@ -107,12 +107,21 @@ def test_tunable_param_unit_mapping_roundtrip():
 
 def test_metrics_on_a_hand_made_run():
     t = np.arange(0, 10.0, 1.0)
-    df = pd.DataFrame({
-        "t_s": t, "s_m": t * 10, "v_mps": np.full(10, 10.0), "a_mps2": np.zeros(10),
-        "v_ref_mps": np.full(10, 11.0), "s_ref_m": t * 10 + 2, "v_limit_mps": np.full(10, 10.5),
-        "u_cmd_N": np.r_[np.zeros(5), np.ones(5) * 100.0], "u_N": np.zeros(10),
-        "work_traction_J": np.linspace(0, 3.6e6, 10), "work_brake_J": np.zeros(10),
-    })
+    df = pd.DataFrame(
+        {
+            "t_s": t,
+            "s_m": t * 10,
+            "v_mps": np.full(10, 10.0),
+            "a_mps2": np.zeros(10),
+            "v_ref_mps": np.full(10, 11.0),
+            "s_ref_m": t * 10 + 2,
+            "v_limit_mps": np.full(10, 10.5),
+            "u_cmd_N": np.r_[np.zeros(5), np.ones(5) * 100.0],
+            "u_N": np.zeros(10),
+            "work_traction_J": np.linspace(0, 3.6e6, 10),
+            "work_brake_J": np.zeros(10),
+        }
+    )
     m = episode_metrics(df, dt_s=1.0, s_stop_m=92.0, scheduled_time_s=8.0, traction_efficiency=0.9)
     assert m["E_v_mps"] == pytest.approx(1.0)
     assert m["E_x_m"] == pytest.approx(2.0)
@@ -128,9 +137,25 @@ def test_metrics_on_a_hand_made_run():
 def test_cli_list_and_simulate(tmp_path, capsys):
     assert main(["list"]) == 0
     out = capsys.readouterr().out
-    assert "paper001_stopping" in out and "CN_Beijing_Subway" in out and "CH_Stadelhofen_Altstetten" in out
-    assert main(["simulate", "--scenario", "paper001_stopping", "--controller", "pid",
-                 "--out", str(tmp_path)]) == 0
+    assert (
+        "paper001_stopping" in out
+        and "CN_Beijing_Subway" in out
+        and "CH_Stadelhofen_Altstetten" in out
+    )
+    assert (
+        main(
+            [
+                "simulate",
+                "--scenario",
+                "paper001_stopping",
+                "--controller",
+                "pid",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "stop_error_m" in out
     assert (tmp_path / "paper001_stopping_pid.png").stat().st_size > 10_000

@@ -1,4 +1,4 @@
-"""Command-line interface: ``train-envs list | simulate`` (later: tune, train, evaluate, reproduce)."""
+"""Command-line interface: ``train-envs list | simulate`` (more subcommands per issue)."""
 
 from __future__ import annotations
 
@@ -42,8 +42,10 @@ def cmd_list(args: argparse.Namespace) -> int:
         print("Trains:")
         for name in list_trains():
             t = get_train(name)
-            print(f"  {name:24s} {t.mass_kg / 1e3:7.1f} t  {t.n_cars} car(s)  "
-                  f"v_max {t.max_speed_mps * 3.6:6.1f} km/h")
+            print(
+                f"  {name:24s} {t.mass_kg / 1e3:7.1f} t  {t.n_cars} car(s)  "
+                f"v_max {t.max_speed_mps * 3.6:6.1f} km/h"
+            )
     if what in ("all", "tracks"):
         print("Tracks:")
         for name in list_tracks():
@@ -65,16 +67,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         res = simulate(sc, args.controller, seed=args.seed, params=params)
     except SimulationError as err:
         err.partial.df.to_csv(out / f"{stem}_partial.csv", index=False)
-        print(f"error: {err}; partial run saved to {out / (stem + '_partial.csv')}", file=sys.stderr)
+        print(
+            f"error: {err}; partial run saved to {out / (stem + '_partial.csv')}", file=sys.stderr
+        )
         return 1
     res.df.to_csv(out / f"{stem}.csv", index=False)
-    fig = speed_distance_figure(res.df, title=f"{sc.name} — {args.controller}", s_stop_m=sc.s_stop_m)
+    fig = speed_distance_figure(
+        res.df, title=f"{sc.name} — {args.controller}", s_stop_m=sc.s_stop_m
+    )
     png = out / f"{stem}.png"
     fig.savefig(png, dpi=120)
     table = pd.Series(res.metrics, name="value").to_frame()
     with pd.option_context("display.float_format", "{:.6g}".format):
-        print(f"Scenario {sc.name}, controller {args.controller}, seed {args.seed}, "
-              f"{len(res.df)} rows, {res.wall_time_s:.2f} s wall")
+        print(
+            f"Scenario {sc.name}, controller {args.controller}, seed {args.seed}, "
+            f"{len(res.df)} rows, {res.wall_time_s:.2f} s wall"
+        )
         print(table.to_string())
     print(f"wrote {png} and {out / (stem + '.csv')}")
     return 0
@@ -84,14 +92,22 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="train-envs", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
     pl = sub.add_parser("list", help="list scenarios, controllers, trains and tracks")
-    pl.add_argument("what", nargs="?", default="all",
-                    choices=["all", "scenarios", "controllers", "trains", "tracks"])
+    pl.add_argument(
+        "what",
+        nargs="?",
+        default="all",
+        choices=["all", "scenarios", "controllers", "trains", "tracks"],
+    )
     pl.set_defaults(func=cmd_list)
     ps = sub.add_parser("simulate", help="run one closed-loop episode, print metrics, write a plot")
     ps.add_argument("--scenario", default="paper001_stopping")
     ps.add_argument("--controller", default="pid")
-    ps.add_argument("--param", action="append", metavar="KEY=VALUE",
-                    help="controller tuning parameter (repeatable)")
+    ps.add_argument(
+        "--param",
+        action="append",
+        metavar="KEY=VALUE",
+        help="controller tuning parameter (repeatable)",
+    )
     ps.add_argument("--seed", type=int, default=0)
     ps.add_argument("--out", default="out", help="output folder for the CSV and PNG")
     ps.set_defaults(func=cmd_simulate)

@@ -59,7 +59,9 @@ def episode_metrics(
     m: dict[str, float] = {}
 
     # --- paper 000
-    car_cols = [c for c in df.columns if c.startswith("u") and c.endswith("_cmd_N") and c[1:-6].isdigit()]
+    car_cols = [
+        c for c in df.columns if c.startswith("u") and c.endswith("_cmd_N") and c[1:-6].isdigit()
+    ]
     if car_cols:
         eu = float(sum(np.sum(df[c].to_numpy() ** 2) for c in car_cols) * dt_s)
     else:

@@ -24,8 +24,9 @@ def speed_distance_figure(
     """
     if isinstance(runs, pd.DataFrame):
         runs = {"train": runs}
-    fig, (ax, axu) = plt.subplots(2, 1, figsize=(9, 6), sharex=True,
-                                  gridspec_kw={"height_ratios": [3, 1.3]})
+    fig, (ax, axu) = plt.subplots(
+        2, 1, figsize=(9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1.3]}
+    )
     first = next(iter(runs.values()))
     s = first["s_m"]
     ax.plot(s, first["v_limit_mps"] * 3.6, color="red", lw=1.0, ls="--", label="speed limit")
@@ -56,8 +57,9 @@ def speed_distance_figure(
 
 def time_series_figure(df: pd.DataFrame, columns: list[str], *, title: str = "") -> Figure:
     """Stacked time series of the given DataFrame columns against ``t_s``."""
-    fig, axes = plt.subplots(len(columns), 1, figsize=(9, 1.8 * len(columns) + 1), sharex=True,
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(columns), 1, figsize=(9, 1.8 * len(columns) + 1), sharex=True, squeeze=False
+    )
     for ax, col in zip(axes[:, 0], columns, strict=True):
         ax.plot(df["t_s"], df[col], lw=1.0)
         ax.set_ylabel(col)

@@ -38,7 +38,9 @@ class Reference:
     def preview_time(self, t0: float, dt: float, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Reference (s, v) at times t0 + dt, ..., t0 + n dt (for predictive controllers)."""
         ts = t0 + dt * np.arange(1, n + 1)
-        return np.asarray(self.profile.s_at_t(ts), float), np.asarray(self.profile.v_at_t(ts), float)
+        return np.asarray(self.profile.s_at_t(ts), float), np.asarray(
+            self.profile.v_at_t(ts), float
+        )
 
     @property
     def duration_s(self) -> float:

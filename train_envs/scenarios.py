@@ -70,7 +70,9 @@ class DisturbanceSpec:
 
     def __post_init__(self) -> None:
         if self.wind not in (None, "constant", "harmonic"):
-            raise ValueError(f"disturbance.wind must be None, 'constant' or 'harmonic', got {self.wind!r}")
+            raise ValueError(
+                f"disturbance.wind must be None, 'constant' or 'harmonic', got {self.wind!r}"
+            )
         check_range("disturbance.random_bound_mps2", self.random_bound_mps2, 0.0, 1.0)
         for name in ("mass_factor_range", "davis_factor_range"):
             lo, hi = getattr(self, name)
@@ -108,7 +110,9 @@ class Scenario:
         check_range("dt_sim_s", self.dt_sim_s, 1e-4, self.dt_ctrl_s)
         ratio = self.dt_ctrl_s / self.dt_sim_s
         if abs(ratio - round(ratio)) > 1e-6:
-            raise ValueError(f"dt_ctrl_s ({self.dt_ctrl_s}) must be a multiple of dt_sim_s ({self.dt_sim_s})")
+            raise ValueError(
+                f"dt_ctrl_s ({self.dt_ctrl_s}) must be a multiple of dt_sim_s ({self.dt_sim_s})"
+            )
         check_positive("t_max_s", self.t_max_s)
         check_range("v0_mps", self.v0_mps, 0.0, 200.0)
         check_choice("input_mode", self.input_mode, ("total", "per_car"))
@@ -130,10 +134,16 @@ class Scenario:
         tr = self.train
         v = self.v0_mps
         prof = self.reference.profile
-        a_ref = float(np.interp(self.s0_m, prof.s_m, prof.a_mps2)) if self.reference.mode == "distance" else float(
-            np.interp(0.0, prof.t_s, prof.a_mps2)
+        a_ref = (
+            float(np.interp(self.s0_m, prof.s_m, prof.a_mps2))
+            if self.reference.mode == "distance"
+            else float(np.interp(0.0, prof.t_s, prof.a_mps2))
         )
-        f = tr.inertial_mass_kg * a_ref + tr.resistance_N(v) + tr.mass_kg * 9.81e-3 * self.gradient_at(self.s0_m)
+        f = (
+            tr.inertial_mass_kg * a_ref
+            + tr.resistance_N(v)
+            + tr.mass_kg * 9.81e-3 * self.gradient_at(self.s0_m)
+        )
         return np.array([float(np.clip(f, -tr.max_brake_N(v), tr.max_traction_N(v)))])
 
     def control_context(self) -> ControlContext:
@@ -275,8 +285,13 @@ def _paper000(name: str, desc: str, track_name: str, disturbance: DisturbanceSpe
         scheduled_time_s=float(prof.t_s[-1]),
         du_max_Nps=6e4,
         u0=0.0,
-        extra={"u_max_car_N": 7e4, "u_min_car_N": -6.5e4, "du_max_car_Nps": 6e4,
-               "l_safe_m": 0.2, "l_d_m": 1.2},
+        extra={
+            "u_max_car_N": 7e4,
+            "u_min_car_N": -6.5e4,
+            "du_max_car_Nps": 6e4,
+            "l_safe_m": 0.2,
+            "l_d_m": 1.2,
+        },
     )
 
 
@@ -287,26 +302,42 @@ def paper000_single_section() -> Scenario:
     (see :func:`train_envs.lines.track.paper000_section_track`); the reference is the
     minimum-time profile on it. Control period 0.2 s (the paper does not state T).
     """
-    return _paper000("paper000_single_section", "Paper 000: 6-car metro, one section, SEMPC",
-                     "paper000_section", DisturbanceSpec())
+    return _paper000(
+        "paper000_single_section",
+        "Paper 000: 6-car metro, one section, SEMPC",
+        "paper000_section",
+        DisturbanceSpec(),
+    )
 
 
 def paper000_multi_section() -> Scenario:
     """Paper 000 multi-section scenario: stops at 14687, 25279, 33086 m (first leg run here)."""
-    return _paper000("paper000_multi_section", "Paper 000: 6-car metro, multi-section line",
-                     "paper000_multi_section", DisturbanceSpec())
+    return _paper000(
+        "paper000_multi_section",
+        "Paper 000: 6-car metro, multi-section line",
+        "paper000_multi_section",
+        DisturbanceSpec(),
+    )
 
 
 def paper000_disturbance_constant() -> Scenario:
     """Paper 000 §IV-C: constant wind disturbance ŵ = 0.2 m/s² per unit mass."""
-    return _paper000("paper000_disturbance_constant", "Paper 000: constant wind 0.2 m/s^2",
-                     "paper000_section", DisturbanceSpec(wind="constant", w0_mps2=0.2))
+    return _paper000(
+        "paper000_disturbance_constant",
+        "Paper 000: constant wind 0.2 m/s^2",
+        "paper000_section",
+        DisturbanceSpec(wind="constant", w0_mps2=0.2),
+    )
 
 
 def paper000_disturbance_harmonic() -> Scenario:
     """Paper 000 §IV-C: harmonic wind ŵ = 0.1 + 0.1 cos t per unit mass."""
-    return _paper000("paper000_disturbance_harmonic", "Paper 000: harmonic wind 0.1+0.1cos t",
-                     "paper000_section", DisturbanceSpec(wind="harmonic", w0_mps2=0.1, w1_mps2=0.1))
+    return _paper000(
+        "paper000_disturbance_harmonic",
+        "Paper 000: harmonic wind 0.1+0.1cos t",
+        "paper000_section",
+        DisturbanceSpec(wind="harmonic", w0_mps2=0.1, w1_mps2=0.1),
+    )
 
 
 def paper002_cruise() -> Scenario:
@@ -425,7 +456,7 @@ def real_line_scenario(
     prof = time_supplemented_profile(track, train, sched, 0.0, length, ds=1.0)
     return Scenario(
         name=name or f"{track_name}_{from_stop}_{to_stop}",
-        description=f"{track_name} stop {from_stop} -> {to_stop} ({length:.0f} m) with {train_name}",
+        description=f"{track_name} stop {from_stop} -> {to_stop} ({length:.0f} m), {train_name}",
         train=train,
         track=track,
         reference=Reference(prof, mode="time"),
@@ -442,12 +473,16 @@ def real_line_scenario(
 
 def yizhuang() -> Scenario:
     """Beijing Yizhuang line (TTOBench), Songjiazhuang → next station, Beijing Subway train."""
-    return real_line_scenario("CN_Songjiazhuang_Yizhuang", "CN_Beijing_Subway", 0, 1, name="yizhuang")
+    return real_line_scenario(
+        "CN_Songjiazhuang_Yizhuang", "CN_Beijing_Subway", 0, 1, name="yizhuang"
+    )
 
 
 def zurich() -> Scenario:
     """Zürich Stadelhofen → next stop towards Altstetten (TTOBench), Stadler FLIRT."""
-    return real_line_scenario("CH_Stadelhofen_Altstetten", "CH_Stadler_FLIRT_TPF", 0, 1, name="zurich")
+    return real_line_scenario(
+        "CH_Stadelhofen_Altstetten", "CH_Stadler_FLIRT_TPF", 0, 1, name="zurich"
+    )
 
 
 SCENARIOS: dict[str, Callable[[], Scenario]] = {

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from train_envs.controllers.base import ControlContext, Controller, Observation
+from train_envs.controllers.base import Controller, Observation
 from train_envs.metrics import episode_metrics
 from train_envs.scenarios import Scenario, build_plant
 
@@ -40,7 +40,9 @@ class SimulationResult:
     error: str | None = None
 
     def metrics_frame(self) -> pd.DataFrame:
-        return pd.DataFrame([{"scenario": self.scenario, "controller": self.controller, **self.metrics}])
+        return pd.DataFrame(
+            [{"scenario": self.scenario, "controller": self.controller, **self.metrics}]
+        )
 
 
 class SimulationError(RuntimeError):
@@ -101,8 +103,18 @@ class ClosedLoop:
         self._cols: dict[str, np.ndarray] = {
             name: np.full(n, np.nan)
             for name in (
-                "t_s", "s_m", "v_mps", "a_mps2", "v_ref_mps", "s_ref_m", "v_limit_mps",
-                "gradient_permil", "u_cmd_N", "u_N", "work_traction_J", "work_brake_J",
+                "t_s",
+                "s_m",
+                "v_mps",
+                "a_mps2",
+                "v_ref_mps",
+                "s_ref_m",
+                "v_limit_mps",
+                "gradient_permil",
+                "u_cmd_N",
+                "u_N",
+                "work_traction_J",
+                "work_brake_J",
                 "saturated",
             )
         }
@@ -203,13 +215,18 @@ class ClosedLoop:
             obs = self.observe()
             last = {name: np.nan for name in df.columns}
             last.update(
-                t_s=obs.t_s, s_m=obs.s_m, v_mps=obs.v_mps, a_mps2=obs.a_mps2,
+                t_s=obs.t_s,
+                s_m=obs.s_m,
+                v_mps=obs.v_mps,
+                a_mps2=obs.a_mps2,
                 v_ref_mps=self.scenario.reference.v_ref(obs.t_s, obs.s_m),
                 s_ref_m=self.scenario.reference.s_ref(obs.t_s),
                 v_limit_mps=self.scenario.speed_limit_at(obs.s_m),
                 gradient_permil=self.scenario.gradient_at(obs.s_m),
-                u_cmd_N=float(np.sum(self.u_prev)), u_N=float(np.sum(obs.forces_N)),
-                work_traction_J=self.plant.work_traction_J, work_brake_J=self.plant.work_brake_J,
+                u_cmd_N=float(np.sum(self.u_prev)),
+                u_N=float(np.sum(obs.forces_N)),
+                work_traction_J=self.plant.work_traction_J,
+                work_brake_J=self.plant.work_brake_J,
                 saturated=0.0,
             )
             df = pd.concat([df, pd.DataFrame([last])], ignore_index=True)
@@ -269,5 +286,7 @@ def simulate(
             loop.step()
     except Exception as exc:  # keep what was computed
         partial = loop.result(error=f"{type(exc).__name__}: {exc}")
-        raise SimulationError(f"simulation failed at t={loop.plant.t:.2f} s: {exc}", partial) from exc
+        raise SimulationError(
+            f"simulation failed at t={loop.plant.t:.2f} s: {exc}", partial
+        ) from exc
     return loop.result()

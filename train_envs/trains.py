@@ -167,7 +167,9 @@ class TrainParams:
     def with_mass_factor(self, factor: float) -> TrainParams:
         """Copy with the mass (load) scaled by ``factor``; Davis a, b scale with mass."""
         check_range("mass factor", factor, 0.5, 2.0)
-        masses = None if self.car_masses_kg is None else tuple(m * factor for m in self.car_masses_kg)
+        masses = (
+            None if self.car_masses_kg is None else tuple(m * factor for m in self.car_masses_kg)
+        )
         return replace(
             self,
             mass_kg=self.mass_kg * factor,
@@ -411,6 +413,12 @@ def get_train(name: str) -> TrainParams:
     if name in PAPER_TRAINS:
         return PAPER_TRAINS[name]()
     if name in TTOBENCH_TRAIN_FILES:
-        ref = resources.files("train_envs") / "data" / "TTOBench" / "trains" / TTOBENCH_TRAIN_FILES[name]
+        ref = (
+            resources.files("train_envs")
+            / "data"
+            / "TTOBench"
+            / "trains"
+            / TTOBENCH_TRAIN_FILES[name]
+        )
         return train_from_ttobench(json.loads(ref.read_text()))
     raise ValueError(f"unknown train {name!r}; choose one of: {', '.join(list_trains())}")

@@ -70,9 +70,7 @@ def check_increasing(name: str, values: Sequence[float], *, strict: bool = True)
     if bad.size:
         i = int(bad[0])
         word = "strictly increasing" if strict else "non-decreasing"
-        raise ValueError(
-            f"{name} must be {word}: element {i + 1} ({arr[i + 1]}) follows {arr[i]}"
-        )
+        raise ValueError(f"{name} must be {word}: element {i + 1} ({arr[i + 1]}) follows {arr[i]}")
     return arr
 
 

@@ -31,7 +31,9 @@ def list_controllers() -> list[str]:
 def make_controller(name: str, scenario: Any = None, **params: float) -> Controller:
     """Build a controller by name (``scenario`` lets paper controllers pick its settings)."""
     if name not in CONTROLLERS:
-        raise ValueError(f"unknown controller {name!r}; choose one of: {', '.join(list_controllers())}")
+        raise ValueError(
+            f"unknown controller {name!r}; choose one of: {', '.join(list_controllers())}"
+        )
     factory = CONTROLLERS[name]
     if "scenario" in inspect.signature(factory).parameters:
         return factory(scenario=scenario, **params)

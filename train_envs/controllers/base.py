@@ -38,7 +38,9 @@ class TunableParam:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.low) and math.isfinite(self.high)) or self.low >= self.high:
-            raise ValueError(f"param {self.name}: need finite low < high, got [{self.low}, {self.high}]")
+            raise ValueError(
+                f"param {self.name}: need finite low < high, got [{self.low}, {self.high}]"
+            )
         if self.log and self.low <= 0:
             raise ValueError(f"param {self.name}: log scale needs low > 0, got {self.low}")
         if not (self.low <= self.default <= self.high):

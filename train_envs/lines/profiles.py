@@ -49,6 +49,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
 FloatOrArray = float | np.ndarray
+_SCALAR = (float, int)  # fast path for scalar arguments (np.float64 is a float)
 
 #: Minimum node spacing [m] when merging the regular grid with section starts.
 _MERGE_TOL_M = 1e-6
@@ -154,7 +155,7 @@ class SpeedProfile:
 
     def v_at_s(self, s: FloatOrArray) -> FloatOrArray:
         """Speed [m/s] at position ``s`` [m] (``v²`` linear in ``s`` within a segment)."""
-        if isinstance(s, float | int):
+        if isinstance(s, _SCALAR):
             sl = self._s
             i = min(max(bisect_right(sl, s) - 1, 0), len(sl) - 2)
             d = min(max(s - sl[i], 0.0), sl[i + 1] - sl[i])
@@ -167,7 +168,7 @@ class SpeedProfile:
 
     def t_at_s(self, s: FloatOrArray) -> FloatOrArray:
         """Time [s] at which the profile reaches position ``s`` [m]."""
-        if isinstance(s, float | int):
+        if isinstance(s, _SCALAR):
             sl = self._s
             i = min(max(bisect_right(sl, s) - 1, 0), len(sl) - 2)
             d = min(max(s - sl[i], 0.0), sl[i + 1] - sl[i])
@@ -185,7 +186,7 @@ class SpeedProfile:
 
     def s_at_t(self, t: FloatOrArray) -> FloatOrArray:
         """Position [m] at time ``t`` [s]: ``s_i + v_i τ + a_i τ² / 2``."""
-        if isinstance(t, float | int):
+        if isinstance(t, _SCALAR):
             tl = self._t
             i = min(max(bisect_right(tl, t) - 1, 0), len(tl) - 2)
             tau = min(max(t - tl[i], 0.0), tl[i + 1] - tl[i])
@@ -199,7 +200,7 @@ class SpeedProfile:
 
     def v_at_t(self, t: FloatOrArray) -> FloatOrArray:
         """Speed [m/s] at time ``t`` [s]: ``v_i + a_i τ`` (linear in time per segment)."""
-        if isinstance(t, float | int):
+        if isinstance(t, _SCALAR):
             tl = self._t
             i = min(max(bisect_right(tl, t) - 1, 0), len(tl) - 2)
             tau = min(max(t - tl[i], 0.0), tl[i + 1] - tl[i])
@@ -434,6 +435,7 @@ def time_supplemented_profile(
     *,
     margin_mps: float = 0.0,
     tol_s: float = 0.05,
+    min_coast_speed_mps: float = 1.0,
 ) -> SpeedProfile:
     """Run from ``s_start`` to a stop at ``s_stop`` taking ``scheduled_time_s`` seconds.
 
@@ -441,13 +443,17 @@ def time_supplemented_profile(
 
     * ``"cruise_cap"``: a global cruise-speed cap ``v_c`` is added to the caps of the
       minimum-time construction (forward at full traction up to ``min(limit, v_c)``,
-      service braking); ``v_c`` is found by bisection on the running time, which falls
-      monotonically with ``v_c``.
+      service braking); the running time falls monotonically with ``v_c``, which is found
+      by a bracketing search (bisection accelerated by Illinois false-position steps).
     * ``"coast"``: the minimum-time profile is followed up to a coasting point ``s_c``;
       from there the train coasts (traction off: ``a = -(R(v) + F_track(s)) / M(1+ρ)``,
       still held below the caps, i.e. braking to hold a limit downhill) until the service
-      braking curve to the stop; ``s_c`` is found by bisection (earlier coasting = slower).
-      Fails if coasting stalls before the stop can be reached in the scheduled time.
+      braking curve to the stop; ``s_c`` is found by the same bracketing search (earlier
+      coasting = slower).
+      A coasting run that stalls, or whose falling speed drops below
+      ``min_coast_speed_mps`` (default 1 m/s, the point where an ATO would re-apply
+      traction) before the braking curve takes over, is infeasible; the method fails if the
+      schedule needs such a run.
 
     The result is never faster than the minimum-time profile and its running time is
     within ``tol_s`` (default 0.05 s) of the schedule.
@@ -459,6 +465,7 @@ def time_supplemented_profile(
     track, train = _resolve(track, train)
     check_choice("method", method, ["cruise_cap", "coast"])
     tol_s = check_range("tol_s", tol_s, 0.0, 0.5, low_inclusive=False)
+    min_coast = check_range("min_coast_speed_mps", min_coast_speed_mps, 0.0)
     run = _prepare(track, train, s_start, s_stop, ds, 0.0, margin_mps)
     v_min = _min_time_speeds(run)
     t_min = _running_time(run.s, v_min)
@@ -475,7 +482,7 @@ def time_supplemented_profile(
     elif method == "cruise_cap":
         s, v, lim, label = _cruise_cap(run, v_min, scheduled_time_s, tol_s, where)
     else:
-        s, v, lim, label = _coast(run, v_min, scheduled_time_s, tol_s, where)
+        s, v, lim, label = _coast(run, v_min, scheduled_time_s, tol_s, where, min_coast)
     return SpeedProfile(s, v, v_limit_mps=lim, label=label)
 
 
@@ -572,7 +579,12 @@ def _cruise_cap(
 
 
 def _coast(
-    run: _Run, v_min: np.ndarray, target: float, tol: float, where: str
+    run: _Run,
+    v_min: np.ndarray,
+    target: float,
+    tol: float,
+    where: str,
+    min_coast_speed_mps: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     decel = run.train.service_decel_mps2
     s_nodes = run.s
@@ -595,13 +607,18 @@ def _coast(
             if j >= len(s_nodes) - 1:  # coasting from the stop itself: minimum-time run
                 return _running_time(s_nodes, v_min), (s_nodes, v_min, run.limit)
             v_head = v_min[: j + 1]
-        if v_head[-1] <= 0.0:
-            return math.inf, None
         try:
             tail = _forward(run.train, np.diff(s[j:]), grade[j:], cap[j:], v_head[-1], coast=True)
         except _StallError:
             return math.inf, None
-        v = np.minimum(np.concatenate((v_head[:-1], tail)), _backward(s, cap, decel))
+        bwd = _backward(s, cap, decel)
+        if min_coast_speed_mps > 0.0:
+            # interior nodes where the coasting curve governs, falls and is below the floor
+            inner, bwd_inner = tail[1:-1], bwd[j + 1 : -1]
+            falling = np.diff(tail)[:-1] < 0.0
+            if np.any((inner < min_coast_speed_mps) & falling & (inner < bwd_inner)):
+                return math.inf, None
+        v = np.minimum(np.concatenate((v_head[:-1], tail)), bwd)
         return _running_time(s, v), (s, v, lim)
 
     lo, hi = float(s_nodes[0]), float(s_nodes[-1])
@@ -618,8 +635,8 @@ def _coast(
     if payload is None or abs(t - target) > tol:
         raise ValueError(
             f"scheduled_time_s ({target:.2f} s) cannot be reached by coasting on {where}: the "
-            f"longest coasting run that reaches the stop takes {t:.2f} s (coasting from "
-            f"earlier stalls); use method='cruise_cap'"
+            f"longest feasible coasting run takes {t:.2f} s (coasting earlier stalls or falls "
+            f"below min_coast_speed_mps={min_coast_speed_mps:g}); use method='cruise_cap'"
         )
     s, v, lim = payload
     return s, v, lim, f"time-supplemented (coast from {sc:.2f} m), {where}"

@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
 FloatOrArray = float | np.ndarray
+_SCALAR = (float, int)  # fast path for scalar arguments (np.float64 is a float)
 
 #: Curve-resistance coefficient of the empirical formula ``w_c = A / R`` [N/kN * m].
 CURVE_RESISTANCE_COEFF = 600.0
@@ -129,6 +130,8 @@ class Track:
     _sl_val: list[float] = field(init=False, repr=False, compare=False)
     _gr_pos: list[float] = field(init=False, repr=False, compare=False)
     _gr_val: list[float] = field(init=False, repr=False, compare=False)
+    _gr_sin: list[float] = field(init=False, repr=False, compare=False)
+    _straight: bool = field(init=False, repr=False, compare=False)
     _cv_pos: list[float] = field(init=False, repr=False, compare=False)
     _cv_end: list[float] = field(init=False, repr=False, compare=False)
     _cv_k0: list[float] = field(init=False, repr=False, compare=False)
@@ -244,6 +247,7 @@ class Track:
         self._set("_sl_val", sl_val.tolist())
         self._set("_gr_pos", gr_pos.tolist())
         self._set("_gr_val", gr_val.tolist())
+        self._set("_gr_sin", np.sin(np.arctan(gr_val * 1e-3)).tolist())
         self._set("_cv_pos", cv_pos.tolist())
         self._set("_cv_end", cv_end.tolist())
         k0, k1 = _curvature(r0), _curvature(r1)
@@ -252,6 +256,7 @@ class Track:
         self._set("_cv_end_arr", _frozen(cv_end))
         self._set("_cv_k0_arr", _frozen(k0))
         self._set("_cv_k1_arr", _frozen(k1))
+        self._set("_straight", bool(np.all(k0 == 0.0) and np.all(k1 == 0.0)))
 
     def __repr__(self) -> str:
         return (
@@ -287,7 +292,7 @@ class Track:
     # ------------------------------------------------------------------ lookups
     def speed_limit_at(self, s: FloatOrArray) -> FloatOrArray:
         """Speed limit [m/s] at position ``s`` [m] (a section starts at its position)."""
-        if isinstance(s, float | int):
+        if isinstance(s, _SCALAR):
             i = bisect_right(self._sl_pos, s) - 1
             return self._sl_val[i if i > 0 else 0]
         i = np.searchsorted(self.speed_limit_positions_m, np.asarray(s, float), side="right")
@@ -295,7 +300,7 @@ class Track:
 
     def gradient_permil_at(self, s: FloatOrArray) -> FloatOrArray:
         """Gradient [permil] at position ``s`` [m], uphill positive."""
-        if isinstance(s, float | int):
+        if isinstance(s, _SCALAR):
             i = bisect_right(self._gr_pos, s) - 1
             return self._gr_val[i if i > 0 else 0]
         i = np.searchsorted(self.gradient_positions_m, np.asarray(s, float), side="right")
@@ -308,7 +313,7 @@ class Track:
         start to ``1/R_end`` at the next section start (or the track end): constant on an
         arc, a clothoid when the radii differ.
         """
-        if isinstance(s, float | int):
+        if isinstance(s, _SCALAR):
             i = bisect_right(self._cv_pos, s) - 1
             if i < 0:
                 i = 0
@@ -367,10 +372,10 @@ class Track:
         :meth:`curve_resistance_permil_at`. Positive uphill / in curves, negative
         downhill. Pass ``include_curves=False`` for the gradient term alone. ``g = 9.81``.
         """
-        if isinstance(s, float | int):
-            i = self.gradient_permil_at(s)
-            f = mass_kg * G * math.sin(math.atan(i * 1e-3))
-            if include_curves:
+        if isinstance(s, _SCALAR):
+            i = bisect_right(self._gr_pos, s) - 1
+            f = mass_kg * G * self._gr_sin[i if i > 0 else 0]
+            if include_curves and not self._straight:
                 f += mass_kg * G * 1e-3 * self.curve_resistance_permil_at(s)
             return f
         x = np.asarray(s, float)
@@ -625,8 +630,8 @@ def paper001_track() -> Track:
 def paper000_section_track() -> Track:
     """ASSUMED urban section for paper 000's single-section experiments (3000 m).
 
-    Paper 000 (Wang, Xing, Wang, IEEE Access 2024) publishes its 6-car metro train but not
-    the single section's infrastructure; 45.8 m/s in the paper is the over-speed
+    Source: paper 000 (Wang, Xing, Wang, IEEE Access 2024) publishes its 6-car metro train
+    but not the single section's infrastructure; 45.8 m/s in the paper is the over-speed
     protection speed, not a line limit. We assume a 3 km metro interstation: limit
     100 km/h (27.8 m/s) with an 80 km/h (22.2 m/s) curve on [1200, 1800] m (R = 800 m with
     50 m clothoids), and a varying slope profile within ±20 permil (3, 15, -2, -20, 5, -3

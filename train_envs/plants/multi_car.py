@@ -47,7 +47,7 @@ from train_envs.validation import check_finite, check_nonnegative, check_positiv
 
 @dataclass(frozen=True)
 class ActuatorParams:
-    """Traction/braking actuator: ideal (0), first-order lag (1) or second order (2), plus dead time."""
+    """Traction/braking actuator: ideal (0), first-order lag (1) or second order (2) + dead time."""
 
     order: int = 0
     tau_s: float = 0.4

@@ -35,8 +35,9 @@ class PointMassTrain(TrainPlant):
         disturbances=(),
         davis_variation=None,
     ) -> None:
-        actuator = ActuatorParams(order=1 if tau_s > 0 else 0, tau_s=tau_s or 0.4,
-                                  dead_time_s=dead_time_s)
+        actuator = ActuatorParams(
+            order=1 if tau_s > 0 else 0, tau_s=tau_s or 0.4, dead_time_s=dead_time_s
+        )
         super().__init__(
             train,
             gradient_permil,
