@@ -53,8 +53,10 @@ class TunableParam:
         a = min(1.0, max(-1.0, float(a)))
         f = 0.5 * (a + 1.0)
         if self.log:
-            return math.exp(math.log(self.low) + f * (math.log(self.high) - math.log(self.low)))
-        return self.low + f * (self.high - self.low)
+            x = math.exp(math.log(self.low) + f * (math.log(self.high) - math.log(self.low)))
+        else:
+            x = self.low + f * (self.high - self.low)
+        return min(self.high, max(self.low, x))  # exact bounds despite rounding
 
     def to_unit(self, x: float) -> float:
         """Inverse of :meth:`from_unit`."""

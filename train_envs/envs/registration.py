@@ -1,0 +1,82 @@
+"""Registered env ids (namespace ``TrainEnvs``), registered idempotently on import.
+
+Each id is ``TrainTuningEnv`` with a scenario and an inner controller; ``gymnasium.make
+(id, config={...})`` overrides any key of :meth:`TrainTuningEnv.default_config`. An id
+is registered only once its controller exists in :data:`train_envs.controllers.
+CONTROLLERS` (the MPC family lands controller by controller).
+
+In child processes (SubprocVecEnv with the spawn start method, rl-zoo3) use the module
+prefix so the child imports the package and registers the ids itself::
+
+    gymnasium.make("train_envs:TrainEnvs/Stopping001PID-v0")
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+
+ENTRY_POINT = "train_envs.envs.train_env:TrainTuningEnv"
+
+#: id -> (default config, one-line description)
+ENV_SPECS: dict[str, tuple[dict[str, Any], str]] = {
+    "TrainEnvs/Stopping001-v0": (
+        {"scenario": "paper001_stopping", "controller": "rsmpc"},
+        "paper 001 stopping (490 t HST, lag + dead time), robust self-triggered MPC",
+    ),
+    "TrainEnvs/Stopping001PID-v0": (
+        {"scenario": "paper001_stopping", "controller": "pid"},
+        "paper 001 stopping with the PID comparator",
+    ),
+    "TrainEnvs/Section000-v0": (
+        {"scenario": "paper000_single_section", "controller": "sempc"},
+        "paper 000 single section, 6-car metro with couplers, SEMPC",
+    ),
+    "TrainEnvs/Cruise002-v0": (
+        {"scenario": "paper002_cruise", "controller": "adaptive_mpc", "decision_interval": 10},
+        "paper 002 cruise, 4-car CRH-3 with time-varying resistance, adaptive MPC",
+    ),
+    "TrainEnvs/Cruise003-v0": (
+        {"scenario": "paper003_cruise", "controller": "fuzzy_mpc", "decision_interval": 10},
+        "paper 003 cruise, 8-car train with actuator dynamics, fuzzy predictive control",
+    ),
+    "TrainEnvs/Urban004-v0": (
+        {"scenario": "paper004_urban", "controller": "dmc"},
+        "paper 004 urban run 2940 m in 195 s, DMC with online softening/correction",
+    ),
+    "TrainEnvs/Urban004FuzzyPID-v0": (
+        {"scenario": "paper004_urban", "controller": "fuzzy_pid"},
+        "paper 004 urban run with the Fuzzy-PID comparator",
+    ),
+    "TrainEnvs/Yizhuang-v0": (
+        {
+            "real_line": {"track": "CN_Songjiazhuang_Yizhuang", "train": "CN_Beijing_Subway"},
+            "controller": "mpc",
+        },
+        "Beijing Yizhuang line (TTOBench), random station-to-station run, linear MPC",
+    ),
+    "TrainEnvs/Zurich-v0": (
+        {
+            "real_line": {"track": "CH_Stadelhofen_Altstetten", "train": "CH_Stadler_FLIRT_TPF"},
+            "controller": "mpc",
+        },
+        "Zürich Stadelhofen–Altstetten (TTOBench), random station-to-station run, linear MPC",
+    ),
+}
+
+
+def registered_ids() -> list[str]:
+    """Ids of this package that are registered now."""
+    return [i for i in ENV_SPECS if i in gym.registry]
+
+
+def register_envs() -> list[str]:
+    """Register every id whose controller is available; safe to call repeatedly."""
+    from train_envs.controllers import CONTROLLERS
+
+    for env_id, (config, _doc) in ENV_SPECS.items():
+        if env_id in gym.registry or config["controller"] not in CONTROLLERS:
+            continue
+        gym.register(id=env_id, entry_point=ENTRY_POINT, kwargs={"base_config": config})
+    return registered_ids()
