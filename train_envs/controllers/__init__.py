@@ -6,7 +6,9 @@ import inspect
 from collections.abc import Callable
 from typing import Any
 
+from train_envs.controllers.afsmc import AFSMCController
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
+from train_envs.controllers.fuzzy_pid import FuzzyPIDController
 from train_envs.controllers.pid import PIDController
 
 
@@ -21,6 +23,8 @@ def _tracking(**kw: Any) -> Controller:
 CONTROLLERS: dict[str, Callable[..., Controller]] = {
     "pid": PIDController,
     "tracking": _tracking,
+    "fuzzy_pid": FuzzyPIDController,
+    "afsmc": AFSMCController,
 }
 
 
@@ -41,9 +45,11 @@ def make_controller(name: str, scenario: Any = None, **params: float) -> Control
 
 
 __all__ = [
+    "AFSMCController",
     "CONTROLLERS",
     "ControlContext",
     "Controller",
+    "FuzzyPIDController",
     "Observation",
     "PIDController",
     "TunableParam",

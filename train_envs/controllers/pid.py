@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from train_envs.controllers._common import feedforward_N, reference_at
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
-from train_envs.trains import G
 
 
 class PIDController(Controller):
@@ -48,15 +48,7 @@ class PIDController(Controller):
         self._u_prev: np.ndarray | None = None
 
     def _reference(self, obs: Observation) -> tuple[float, float]:
-        ref = self.ctx.reference
-        prof = ref.profile
-        if ref.mode == "distance":
-            v_ref = float(prof.v_at_s(obs.s_m))
-            a_ref = float(np.interp(obs.s_m, prof.s_m, prof.a_mps2))
-        else:
-            v_ref = float(prof.v_at_t(obs.t_s))
-            a_ref = float(np.interp(obs.t_s, prof.t_s, prof.a_mps2))
-        return v_ref, a_ref
+        return reference_at(self.ctx, obs)
 
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
         ctx = self.ctx
@@ -73,8 +65,7 @@ class PIDController(Controller):
         a_cmd = a_ref + p["kp"] * e + p["ki"] * self._integral + p["kd"] * self._de_f
         u = tr.inertial_mass_kg * a_cmd
         if self.feedforward:
-            theta = float(ctx.track.equivalent_gradient_permil_at(obs.s_m)) if ctx.track else 0.0
-            u += tr.resistance_N(obs.v_mps) + tr.mass_kg * G * theta / 1000.0
+            u += feedforward_N(ctx, obs.s_m, obs.v_mps)
         u_hi = tr.max_traction_N(obs.v_mps)
         u_lo = -tr.max_brake_N(obs.v_mps)
         u_sat = min(max(u, u_lo), u_hi)
