@@ -435,9 +435,9 @@ def paper004_urban() -> Scenario:
     """Paper 004: urban run of 2940 m in 195 s (Dalian Metro Line 12, profile assumed).
 
     The reference is the time-supplemented profile meeting the 195 s schedule on our
-    assumed line, planned with 85 % of the traction envelope (:func:`reference_train`); the plant is a single-point B-type metro with a 0.5 s
-    traction lag
-    (assumed; 004 gives none).
+    assumed line, planned with 85 % of the traction envelope (:func:`reference_train`);
+    the plant is a single-point B-type metro with a 0.5 s traction lag (assumed; 004
+    gives none).
     """
     train = get_train("paper004_btype_metro")
     track = get_track("paper004")
