@@ -90,6 +90,7 @@ class ClosedLoop:
         if self.u_prev.size != n_in:
             self.u_prev = np.full(n_in, self.u_prev.sum() / n_in)
         self.k = 0
+        self._moved = sc.v0_mps > 0.1
         self.done = False
         self.terminated = False
         self.truncated = False
@@ -192,8 +193,10 @@ class ClosedLoop:
     def _check_done(self) -> None:
         sc, p = self.scenario, self.plant
         t = p.t
+        if not self._moved and p.v > 0.1:
+            self._moved = True
         if sc.s_stop_m is not None:
-            if p.stopped and t > 2 * self.dt:
+            if p.stopped and self._moved:
                 self.terminated = True
             elif p.s > sc.s_stop_m + sc.overrun_m:
                 self.terminated = True

@@ -69,6 +69,10 @@ class ActuatorParams:
 class TrainPlant:
     """Cascade of ``n_cars`` mass points (n = 1 gives the single-point train).
 
+    A train decelerating below ``HOLD_SPEED_MPS`` (1 cm/s) under a braking force is
+    held at standstill (the holding brake of ATO stopping), which ends a stop that a
+    controller would otherwise approach asymptotically.
+
     Args:
         train: physical parameters (``train.n_cars`` cars unless ``n_cars`` overrides).
         gradient_permil: callable s -> equivalent gradient [‰] (vectorised), e.g.
@@ -82,6 +86,8 @@ class TrainPlant:
             ``"per_car"`` (one command per car).
         car_length_m: car length; the rest spacing is car length + coupler rest length.
     """
+
+    HOLD_SPEED_MPS = 0.01
 
     def __init__(
         self,
@@ -354,7 +360,11 @@ class TrainPlant:
         self.work_traction_J += 0.25 * h * float((mag + tot).sum())
         self.work_brake_J += 0.25 * h * float((mag - tot).sum())
         self._p_last = p1
-        if v_old > 0.0 and v_new <= 0.0:
+        if v_old > 0.0 and 0.0 < v_new < self.HOLD_SPEED_MPS and v_new < v_old and self._braking():
+            # crawling to a halt under braking: the holding brake takes over
+            z_new[n : 2 * n] = 0.0
+            self.stopped = True
+        elif v_old > 0.0 and v_new <= 0.0:
             # interpolate the stop inside the sub-step (constant deceleration)
             frac = v_old / (v_old - v_new)
             z_new[:n] = z[:n] + 0.5 * z[n : 2 * n] * frac * h
@@ -367,6 +377,10 @@ class TrainPlant:
         if self.actuator.order == 0:
             return self._w_now
         return z[2 * self.n : 3 * self.n]
+
+    def _braking(self) -> bool:
+        """True when the actual force is a braking force (or below the resistance)."""
+        return float(np.sum(self._forces(self.z))) <= float(np.sum(self.ca))
 
     def _breakaway(self, w: np.ndarray) -> bool:
         F = float(np.sum(w if self.actuator.order == 0 else self._forces(self.z)))
