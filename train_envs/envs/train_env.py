@@ -363,7 +363,8 @@ class TrainTuningEnv(gym.Env):
             info["episode_metrics"] = loop.metrics()
         reward = -sum(self._weights[k] * costs[k] for k in OBJECTIVES)
         info["objectives"] = costs
-        for key in ("solve_time_s", "fallback", "slack_max"):
+        # (no wall-clock timings in info: identical seeds must give identical infos)
+        for key in ("fallback", "slack_max", "iterations"):
             if key in loop.last_info:
                 info[key] = loop.last_info[key]
         obs = self._observe()
