@@ -199,3 +199,26 @@ def test_nan_command_and_bad_step_rejected():
         plant.step(0.0, 0.015)
     with pytest.raises(ValueError, match="dead_time_s"):
         PointMassTrain(_plain_train(), None, dead_time_s=0.015, dt_sim_s=0.01)
+
+
+@pytest.mark.parametrize("scenario", ["paper001_stopping", "paper004_urban", "yizhuang"])
+def test_single_car_fast_path_equals_general_path(scenario):
+    """The unrolled float path of the single-point plant reproduces the numpy path."""
+    from train_envs.scenarios import build_plant, get_scenario
+
+    sc = get_scenario(scenario).with_overrides(
+        disturbance=get_scenario(scenario).disturbance.__class__(random_bound_mps2=0.05)
+    )
+    fast = build_plant(sc, np.random.default_rng(1))
+    slow = build_plant(sc, np.random.default_rng(1))
+    slow._scalar_ok = False
+    assert fast._scalar_ok
+    rng = np.random.default_rng(0)
+    for k in range(400):
+        u = float(rng.uniform(-1, 1)) * sc.train.max_brake_N(0.0) * (0.2 if k < 300 else 1.0)
+        fast.step(u, sc.dt_ctrl_s)
+        slow.step(u, sc.dt_ctrl_s)
+        np.testing.assert_allclose(fast.z, slow.z, rtol=1e-12, atol=1e-9)
+        assert fast.stopped == slow.stopped
+    assert fast.work_traction_J == pytest.approx(slow.work_traction_J, rel=1e-12)
+    assert fast.work_brake_J == pytest.approx(slow.work_brake_J, rel=1e-12)

@@ -191,6 +191,15 @@ class TrainPlant:
         self._mg0, self._m0 = float(self._mg[0]), float(self.m[0])
         self._minv0 = 1.0 / float(self.m_inertial[0])
         self._nl_buf = np.zeros(1)
+        # float copies of the ETD2 matrices for the single-car fast path
+        self._scalar_ok = n == 1 and self.davis_variation is None and self.actuator.order < 2
+        ig = self._integ
+        self._sc_mats = (
+            ig.Phi.tolist(),
+            ig.Gamma[:, 0].tolist(),
+            ig.P1[:, 0].tolist(),
+            ig.P2[:, 0].tolist(),
+        )
 
     def _nonlinear(self, z: np.ndarray, t: float) -> np.ndarray:
         """Nonlinear accelerations (rows of the speeds): −(Davis + gradient + w)/m'."""
@@ -322,6 +331,9 @@ class TrainPlant:
             )
         w_cmd = self.saturate(self._split(u))
         self.last_command = w_cmd
+        if self._scalar_ok:
+            self._run_single(float(w_cmd[0]), k)
+            return
         n = self.n
         buf = self._buffer
         nb = buf.shape[0]
@@ -333,6 +345,94 @@ class TrainPlant:
             self._w_now = w
             self._substep(w)
         del n
+
+    def _run_single(self, w_cmd: float, k: int) -> None:
+        """Scalar fast path of :meth:`step` for a single car (same arithmetic in floats).
+
+        The single-point train is the most simulated plant (every tuning evaluation
+        and RL rollout of the point-mass scenarios); at three states numpy's per-call
+        overhead dominates, so the ETD2 step is unrolled on Python floats here.
+        ``tests/test_plants.py`` checks it against the general path.
+        """
+        order = self.actuator.order
+        Phi, Gam, P1, P2 = self._sc_mats
+        h = self.h
+        grad = self.gradient_permil
+        dists = self.disturbances
+        ca, cb, cc = self._ca0, self._cb0, self._cc0
+        mg, m0, minv = self._mg0, self._m0, self._minv0
+        hold = self.HOLD_SPEED_MPS
+        buf = self._buffer
+        nb = buf.shape[0]
+        z = self.z.tolist()
+        t = self.t
+        p_last = float(self._p_last[0])
+        wt = wb = 0.0
+        stopped = self.stopped
+
+        def nl(s_: float, v_: float, t_: float) -> float:
+            av = v_ if v_ >= 0.0 else -v_
+            f = ca + cb * av + cc * av * av
+            f = f if v_ > 0 else (-f if v_ < 0 else 0.0)
+            if grad is not None:
+                f += mg * float(grad(s_))
+            if dists:
+                wd = 0.0
+                for dist in dists:
+                    wd += dist.accel(t_)
+                f += m0 * wd
+            return -f * minv
+
+        for _ in range(k):
+            buf[self._head, 0] = w_cmd
+            w = float(buf[(self._head + 1) % nb, 0]) if nb > 1 else w_cmd
+            self._head = (self._head + 1) % nb
+            nz = len(z)
+            if stopped:
+                F = w if order == 0 else z[2]
+                g_f = mg * float(grad(z[0])) if grad is not None else 0.0
+                if F > g_f + ca:
+                    stopped = False
+                else:
+                    if order:
+                        z[2] = Phi[2][2] * z[2] + Gam[2] * w
+                    z[1] = 0.0
+                    t += h
+                    p_last = 0.0
+                    continue
+            n0 = nl(z[0], z[1], t)
+            a = [
+                sum(Phi[i][j] * z[j] for j in range(nz)) + Gam[i] * w + P1[i] * n0
+                for i in range(nz)
+            ]
+            n1 = nl(a[0], a[1], t + h)
+            dn = n1 - n0
+            z_new = [a[i] + P2[i] * dn for i in range(nz)]
+            v_old, v_new = z[1], z_new[1]
+            p1 = (w if order == 0 else z_new[2]) * v_new
+            tot = p_last + p1
+            mag = abs(p_last) + abs(p1)
+            wt += 0.25 * h * (mag + tot)
+            wb += 0.25 * h * (mag - tot)
+            p_last = p1
+            F_old = w if order == 0 else z[2]
+            if v_old > 0.0 and 0.0 < v_new < hold and v_new < v_old and F_old <= ca:
+                z_new[1] = 0.0
+                stopped = True
+            elif v_old > 0.0 and v_new <= 0.0:
+                frac = v_old / (v_old - v_new)
+                z_new[0] = z[0] + 0.5 * z[1] * frac * h
+                z_new[1] = 0.0
+                stopped = True
+            z = z_new
+            t += h
+        self.z = np.array(z)
+        self.t = t
+        self.stopped = stopped
+        self._w_now = np.array([w if k else self._w_now[0]])
+        self._p_last = np.array([p_last])
+        self.work_traction_J += wt
+        self.work_brake_J += wb
 
     def _substep(self, w: np.ndarray) -> None:
         n, h = self.n, self.h
