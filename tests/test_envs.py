@@ -64,8 +64,10 @@ def test_constant_default_action_reproduces_simulate(env_id):
         df_env.drop(columns=timing, errors="ignore").iloc[:n].reset_index(drop=True),
         res.df.drop(columns=timing, errors="ignore").iloc[:n].reset_index(drop=True),
         check_exact=False,
-        rtol=1e-12,
-        atol=1e-12,
+        # an MPC rebuilt by set_weights (env) and one built with the same weights at
+        # reset (plain runner) agree to rounding, which the closed loop may amplify
+        rtol=1e-7,
+        atol=1e-7,
     )
 
 

@@ -50,6 +50,8 @@ def cmd_list(args: argparse.Namespace) -> int:
         print("Tracks:")
         for name in list_tracks():
             print(f"  {name}")
+    if what in ("all", "envs"):
+        cmd_envs(args)
     return 0
 
 
@@ -88,6 +90,37 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from train_envs.reproduce import REPRODUCTIONS
+
+    df = REPRODUCTIONS[args.paper](seed=args.seed)
+    with pd.option_context("display.float_format", "{:.4g}".format, "display.width", 200):
+        print(df.to_string(index=False))
+    if args.csv:
+        df.to_csv(args.csv, index=False)
+        print(f"wrote {args.csv}")
+    return 0
+
+
+def cmd_envs(_args: argparse.Namespace) -> int:
+    import gymnasium as gym
+
+    from train_envs.envs import ENV_SPECS, registered_ids
+
+    print("Env ids (gymnasium.make(id, config={...})):")
+    for env_id in registered_ids():
+        env = gym.make(env_id)
+        specs = env.unwrapped.param_specs
+        print(f"  {env_id}: {ENV_SPECS[env_id][1]}")
+        for p in specs:
+            scale = "log" if p.log else "lin"
+            print(
+                f"      action {p.name:12s} [{p.low:g}, {p.high:g}] {scale}, default {p.default:g}"
+            )
+        env.close()
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="train-envs", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -96,9 +129,14 @@ def build_parser() -> argparse.ArgumentParser:
         "what",
         nargs="?",
         default="all",
-        choices=["all", "scenarios", "controllers", "trains", "tracks"],
+        choices=["all", "scenarios", "controllers", "trains", "tracks", "envs"],
     )
     pl.set_defaults(func=cmd_list)
+    pr = sub.add_parser("reproduce", help="print our results beside a paper's tables")
+    pr.add_argument("paper", choices=["paper000"])
+    pr.add_argument("--seed", type=int, default=0)
+    pr.add_argument("--csv", default=None, help="also write the table to this CSV file")
+    pr.set_defaults(func=cmd_reproduce)
     ps = sub.add_parser("simulate", help="run one closed-loop episode, print metrics, write a plot")
     ps.add_argument("--scenario", default="paper001_stopping")
     ps.add_argument("--controller", default="pid")

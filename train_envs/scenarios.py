@@ -124,7 +124,8 @@ class Scenario:
         return float(self.track.speed_limit_at(s))
 
     def gradient_at(self, s: float) -> float:
-        return float(self.track.equivalent_gradient_permil_at(s))
+        """Equivalent gradient [‰] at ``s`` (cached look-up table of the track)."""
+        return gradient_lookup(self.track)(float(s))
 
     def initial_command(self) -> np.ndarray:
         """Initial actuator force [N]: ``"hold"`` = the force that follows the reference

@@ -206,6 +206,10 @@ class ClosedLoop:
             self.truncated = True
         self.done = self.terminated or self.truncated
 
+    def columns(self, k0: int, k1: int) -> dict[str, np.ndarray]:
+        """Views of the recorded columns for control steps ``k0 .. k1-1`` (no copy)."""
+        return {name: arr[k0:k1] for name, arr in self._cols.items()}
+
     # ---------------------------------------------------------------- results
     def dataframe(self) -> pd.DataFrame:
         """Rows recorded so far, plus a final row with the state after the last step."""

@@ -34,6 +34,7 @@ feature names are in ``env.observation_names``):
 ======================  =====================================================
 
 Reward: ``−Σ_k w · c_k`` over the control steps of the env step, with per-step costs
+(state at the start of each control period, as the runner records it)
 ``tracking = (v_err / 1 m/s)² dt``, ``jerk = (Δa/dt)² dt``, ``energy`` = traction
 energy increment [kWh] net of regeneration, ``violation`` = overspeed [m/s]·dt +
 saturation·dt; at the end ``stop`` = |stop error| [m] and ``punctuality`` =
@@ -326,20 +327,24 @@ class TrainTuningEnv(gym.Env):
         self._u_before = float(np.sum(loop.u_prev))
         costs = dict.fromkeys(OBJECTIVES, 0.0)
         tr = sc.train
+        k0 = loop.k
         for _ in range(int(self.config["decision_interval"])):
-            p = loop.plant
-            t, s, v = p.t, p.s, p.v
-            e_v = sc.reference.v_ref(t, s) - v
             loop.step()
-            a_now = p.accel
-            costs["tracking"] += e_v * e_v * dt
-            jerk = (a_now - self._a_prev) / dt
-            costs["jerk"] += jerk * jerk * dt
-            self._a_prev = a_now
-            over = max(0.0, p.v - sc.speed_limit_at(p.s))
-            costs["violation"] += (over + float(p.saturated)) * dt
             if loop.done:
                 break
+        # per-control-step costs from the rows the runner recorded (state at the start
+        # of each control period)
+        rows = loop.columns(k0, loop.k)
+        v = rows["v_mps"]
+        e_v = rows["v_ref_mps"] - v
+        costs["tracking"] = float(e_v @ e_v) * dt
+        a = rows["a_mps2"]
+        jerk = np.diff(a, prepend=self._a_prev) / dt
+        costs["jerk"] = float(jerk @ jerk) * dt
+        self._a_prev = float(a[-1])
+        over = np.maximum(v - rows["v_limit_mps"], 0.0)
+        costs["violation"] = float(over.sum() + rows["saturated"].sum()) * dt
+        p = loop.plant
         energy = (
             p.work_traction_J / tr.traction_efficiency - tr.regen_efficiency * p.work_brake_J
         ) / 3.6e6

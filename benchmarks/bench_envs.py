@@ -1,0 +1,94 @@
+"""Env throughput: env steps/s, real-time factor, and where the step time goes.
+
+Run: ``python benchmarks/bench_envs.py [--episodes 2]``. For every registered id with
+its default controller (constant default action): env steps per second, the real-time
+factor (simulated seconds per wall second), the share of the wall time spent inside
+the controller's ``compute`` (measured by wrapping it; for the MPCs this contains
+OSQP's own solve time, reported separately), in the plant, and the env's own overhead
+(observation, reward, bookkeeping) = the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import gymnasium as gym
+
+import train_envs  # noqa: F401
+from train_envs.envs import params_to_action, registered_ids
+
+
+def bench(env_id: str, episodes: int) -> dict[str, float]:
+    env = gym.make(env_id)
+    base = env.unwrapped
+    ctrl = base.controller
+    plant_time = ctrl_time = solve_time = 0.0
+    orig_compute = ctrl.compute
+
+    def timed_compute(obs):
+        nonlocal ctrl_time, solve_time
+        t0 = time.perf_counter()
+        out = orig_compute(obs)
+        ctrl_time += time.perf_counter() - t0
+        solve_time += float(out[1].get("solve_time_s", 0.0))
+        return out
+
+    ctrl.compute = timed_compute
+    steps = 0
+    sim_s = 0.0
+    wall = 0.0
+    for ep in range(episodes):
+        env.reset(seed=ep)
+        plant = base.loop.plant
+        orig_step = plant.step
+
+        def timed_step(u, d, _orig=orig_step):
+            nonlocal plant_time
+            t0 = time.perf_counter()
+            _orig(u, d)
+            plant_time += time.perf_counter() - t0
+
+        plant.step = timed_step
+        action = params_to_action(env, {})
+        t0 = time.perf_counter()
+        done = False
+        while not done:
+            _, _, term, trunc, _ = env.step(action)
+            steps += 1
+            done = term or trunc
+        wall += time.perf_counter() - t0
+        sim_s += plant.t
+    env.close()
+    return {
+        "env": env_id,
+        "env_steps_per_s": steps / wall,
+        "real_time_factor": sim_s / wall,
+        "controller_share": ctrl_time / wall,
+        "osqp_share": solve_time / wall,
+        "plant_share": plant_time / wall,
+        "env_overhead_share": max(0.0, 1.0 - (ctrl_time + plant_time) / wall),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--episodes", type=int, default=2)
+    ap.add_argument("--ids", nargs="*", default=None)
+    args = ap.parse_args()
+    ids = args.ids or registered_ids()
+    print(
+        "| env id | env steps/s | real-time factor | controller | of which OSQP | plant | env overhead |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for env_id in ids:
+        r = bench(env_id, args.episodes)
+        print(
+            f"| {env_id} | {r['env_steps_per_s']:.0f} | {r['real_time_factor']:.0f} | "
+            f"{100 * r['controller_share']:.0f} % | {100 * r['osqp_share']:.0f} % | "
+            f"{100 * r['plant_share']:.0f} % | {100 * r['env_overhead_share']:.0f} % |"
+        )
+
+
+if __name__ == "__main__":
+    main()
