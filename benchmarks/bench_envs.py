@@ -78,7 +78,8 @@ def main() -> None:
     args = ap.parse_args()
     ids = args.ids or registered_ids()
     print(
-        "| env id | env steps/s | real-time factor | controller | of which OSQP | plant | env overhead |"
+        "| env id | env steps/s | real-time factor | controller | of which OSQP | plant "
+        "| env overhead |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|")
     for env_id in ids:

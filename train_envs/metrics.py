@@ -63,9 +63,9 @@ def episode_metrics(
         c for c in df.columns if c.startswith("u") and c.endswith("_cmd_N") and c[1:-6].isdigit()
     ]
     if car_cols:
-        eu = float(sum(np.sum(df[c].to_numpy() ** 2) for c in car_cols) * dt_s)
+        eu = float(sum(np.nansum(df[c].to_numpy() ** 2) for c in car_cols) * dt_s)
     else:
-        eu = float(np.sum(u**2) * dt_s)
+        eu = float(np.nansum(u**2) * dt_s)
     m["E_u_N2s"] = eu
     m["E_v_mps"] = float(np.mean(np.abs(ev)))
     m["E_x_m"] = float(np.mean(np.abs(ex)))

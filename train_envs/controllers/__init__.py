@@ -8,8 +8,10 @@ from typing import Any
 
 from train_envs.controllers.afsmc import AFSMCController
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
+from train_envs.controllers.dmc import DMCController
 from train_envs.controllers.fuzzy_pid import FuzzyPIDController
 from train_envs.controllers.pid import PIDController
+from train_envs.controllers.train_mpc import MultiCarMPC, PointMassMPC
 
 
 def _tracking(**kw: Any) -> Controller:
@@ -19,12 +21,21 @@ def _tracking(**kw: Any) -> Controller:
     return c
 
 
+def _mpc000(scenario: Any = None, **kw: Any) -> Controller:
+    """Paper 000's plain MPC comparator: SEMPC's model without the terminal cost."""
+    return MultiCarMPC(scenario, terminal=False, **kw)
+
+
 #: controller factories by name; each takes keyword tuning parameters
 CONTROLLERS: dict[str, Callable[..., Controller]] = {
     "pid": PIDController,
     "tracking": _tracking,
     "fuzzy_pid": FuzzyPIDController,
     "afsmc": AFSMCController,
+    "dmc": DMCController,
+    "mpc": PointMassMPC,
+    "sempc": MultiCarMPC,
+    "mpc000": _mpc000,
 }
 
 
@@ -49,9 +60,12 @@ __all__ = [
     "CONTROLLERS",
     "ControlContext",
     "Controller",
+    "DMCController",
     "FuzzyPIDController",
     "Observation",
+    "MultiCarMPC",
     "PIDController",
+    "PointMassMPC",
     "TunableParam",
     "list_controllers",
     "make_controller",

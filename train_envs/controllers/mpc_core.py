@@ -1,0 +1,1841 @@
+r"""Linear MPC quadratic-programming core (condensed form, solved with OSQP).
+
+This module knows nothing about trains.  It turns a discrete linear model, a
+quadratic tracking cost and box / polyhedral constraints into one quadratic
+program (QP) per sampling instant and solves it with OSQP.  Every model-predictive
+controller of the library is built on :class:`LinearMPC`.
+
+Model
+-----
+.. math::
+
+    x_{k+1} = A x_k + B u_k + d_k, \qquad y_k = C x_k,
+
+with an optional affine term :math:`d_k` that may vary over the horizon
+(linearised running resistance, gradient force, ...).  ``delta_u=True`` (the
+default) uses the :math:`\Delta u`-augmented form of Maciejowski (2002, sec. 2.4)
+
+.. math::
+
+    \xi_k = \begin{bmatrix} x_k \\ u_{k-1} \end{bmatrix},\qquad
+    \xi_{k+1} = \begin{bmatrix} A & B \\ 0 & I \end{bmatrix} \xi_k
+              + \begin{bmatrix} B \\ I \end{bmatrix} \Delta u_k
+              + \begin{bmatrix} d_k \\ 0 \end{bmatrix},
+
+so that the decision variables are the increments
+:math:`z = (\Delta u_0, \dots, \Delta u_{N_c-1})`.  With ``delta_u=False`` the
+decision variables are the absolute inputs :math:`z = (u_0, \dots, u_{N_c-1})`.
+After the control horizon the input is held: :math:`\Delta u_i = 0` (equivalently
+:math:`u_i = u_{N_c-1}`) for :math:`N_c \le i < N_p`.  Both forms are condensed
+the same way: the augmented prediction is written out as affine maps
+
+.. math::
+
+    U = T_z z + T_u u_{-1},\quad \Delta U = D_z z + D_u u_{-1},\quad
+    X = \Phi x_0 + \Gamma U + \Gamma_d D,\quad Y = (I \otimes C) X,
+
+where :math:`X = (x_1,\dots,x_{N_p})`, :math:`U = (u_0,\dots,u_{N_p-1})` and
+:math:`u_{-1}` is the previously applied input.
+
+QP (decision :math:`w = (z, \varepsilon)`)
+-------------------------------------------
+.. math::
+
+    \min_{z,\ \varepsilon}\ \sum_{i=1}^{N_p} \lVert y_i - r_i\rVert_Q^2
+      + \sum_{i=0}^{N_c-1} \lVert \Delta u_i\rVert_R^2
+      + \sum_{i=0}^{N_p-1} \lVert u_i - u^{\mathrm{ref}}_i\rVert_S^2
+      + \lVert x_{N_p} - x^{\mathrm{ref}}_{N_p}\rVert_P^2
+      + \rho^\top \varepsilon + \gamma\,\varepsilon^\top \varepsilon
+
+subject to
+
+* hard input box:       :math:`u_{\min} \le u_i \le u_{\max}`,  :math:`i < N_c`
+  (the held inputs after :math:`N_c` are equal to :math:`u_{N_c-1}`);
+* hard rate box:        :math:`\Delta u_{\min} \le \Delta u_i \le \Delta u_{\max}`;
+* output box (soft):    :math:`y_{\min,i} - \varepsilon \le y_i \le y_{\max,i} + \varepsilon`,
+  :math:`i = 1..N_p`, bounds may vary per stage;
+* polyhedra (soft):     :math:`H_y y_i \le h_{y,i} + \varepsilon`,
+  :math:`H_x x_i \le h_{x,i} + \varepsilon`;
+* terminal (soft):      :math:`x_{N,\min} - \varepsilon \le x_{N_p} \le x_{N,\max} + \varepsilon`,
+  :math:`H_N x_{N_p} \le h_N + \varepsilon`;
+* :math:`\varepsilon \ge 0`, one slack per constraint row and stage.
+
+The linear slack cost :math:`\rho^\top\varepsilon` is an *exact* (L1) penalty: if
+the hard-constrained problem is feasible and :math:`\rho` exceeds the dual-norm of
+its Lagrange multipliers, the soft QP returns the hard solution with
+:math:`\varepsilon = 0` (Kerrigan & Maciejowski 2000); otherwise the QP stays
+feasible and the violation is minimised.  The tiny quadratic
+:math:`\gamma\,\varepsilon^\top\varepsilon` only makes the problem strictly convex
+in :math:`\varepsilon`.  A penalty of ``np.inf`` for a row makes that row a hard
+constraint (no slack).  Input and rate constraints are always hard; if the
+previous input lies outside ``[u_min, u_max]`` while rates are limited, the
+input bounds of the first stages are relaxed to what the rate limits can reach
+(``u_i`` moves to the box at the maximal rate) so the QP stays feasible.
+
+Internally each slack is stored scaled, :math:`\varepsilon = \varepsilon'/\rho`,
+so that the linear cost of :math:`\varepsilon'` is 1.  This keeps the penalty
+out of :math:`\lVert q\rVert_\infty`, which OSQP uses in its relative
+dual-residual tolerance; with :math:`\rho = 10^5` in :math:`q` the tolerance
+``eps_rel * ||q||`` would be 1e5 times looser on the inputs.
+
+The condensed QP in OSQP form is :math:`\tfrac12 w^\top P w + q^\top w`,
+:math:`l \le A w \le u` with :math:`P = 2\,\mathrm{blkdiag}(E_z^\top W E_z,\ \gamma\rho^{-2})`,
+where :math:`E_z` stacks the sensitivities of all weighted residuals to
+:math:`z` and :math:`W` the weights.  Every vector that changes between
+sampling instants (``q``, the constraint offsets, the predicted free response,
+the constant part of the cost) is linear in the parameter vector
+:math:`\theta = (1, x_0, u_{-1}, r, x^{\mathrm{ref}}_N, d, u^{\mathrm{ref}}, D)`
+and is obtained from one pre-computed matrix-vector product per step.
+
+Solver
+------
+OSQP (Stellato, Banjac, Goulart, Bemporad & Boyd 2020) is set up once per
+controller.  Each :meth:`LinearMPC.solve` only updates ``q``, ``l``, ``u`` and
+warm-starts from the shifted previous primal/dual solution.
+:meth:`LinearMPC.set_weights` / :meth:`LinearMPC.set_model` update the matrix
+values (``Px``, ``Ax``) of a sparsity pattern fixed at construction: the
+input-to-output sensitivities are stored as dense blocks (all entries allowed by
+causality, zero or not), so new values never change the pattern.
+
+Default OSQP settings: ``eps_abs = eps_rel = 1e-6``, ``max_iter = 4000``,
+``polishing = False``, ``check_dualgap = False``, ``verbose = False``.
+OSQP 1.x by default also requires a small duality gap before it stops; on the
+closed-loop MPC problems below this multiplied the iteration count by 2-20
+(e.g. 25 -> 275 iterations for the 12-state system at N = 20) without changing
+the primal/dual residual guarantees, so it is off by default (re-enable it with
+``osqp_settings={"check_dualgap": True}``).
+
+Condensed vs sparse (measured)
+------------------------------
+Both forms were prototyped (throwaway script, OSQP 1.1.3, one CPU core,
+closed loop of 150 steps with random state kicks, rho = 1e5 soft output
+bounds, Delta-u rate limits, eps = 1e-6, no polishing, ``check_dualgap`` off;
+median OSQP ``solve_time``):
+
+=====================================  ===========  ==========
+system / horizon                       condensed    sparse
+=====================================  ===========  ==========
+4 states, 1 input, N = 10               44 us        153 us
+12 states, 6 inputs, N = 3             179 us        289 us
+12 states, 6 inputs, N = 10            493 us        705 us
+12 states, 6 inputs, N = 20           1765 us       1701 us
+12 states, 6 inputs, N = 30           4900 us       2679 us
+=====================================  ===========  ==========
+
+The sparse form (states as variables, dynamics as equality rows) has a
+sparser KKT matrix but twice as many variables and rows and needed about twice
+the ADMM iterations (50 vs 25); the condensed form wins clearly for the small
+systems this library targets (n <= 20, m <= 6) up to N ~ 20 and is equal at
+N = 20 for 12 states; only for long horizons on the largest systems would the
+sparse form pay off.  Only the condensed form is shipped.
+
+Speed notes
+-----------
+The python wrapper of OSQP 1.x costs ~15 us per ``update`` and ~25 us per
+``solve`` call on top of the C solver (it clips the bounds and packs the
+``info`` structure into a namespace).  For small problems that overhead is
+larger than the solve itself, so this module calls the compiled solver object
+(``OSQP._solver``) directly when it is available and falls back to the public
+API otherwise (``LinearMPC(..., fast_osqp=False)`` forces the public API).
+
+References
+----------
+* J. M. Maciejowski, *Predictive Control with Constraints*, Prentice Hall, 2002
+  (condensed prediction, Delta-u augmented form, sec. 2.4 and 3.1).
+* E. C. Kerrigan and J. M. Maciejowski, "Soft constraints and exact penalty
+  functions in model predictive control", UKACC Int. Conf. Control, 2000.
+* B. Stellato, G. Banjac, P. Goulart, A. Bemporad and S. Boyd, "OSQP: an
+  operator splitting solver for quadratic programs", Math. Prog. Comp. 12,
+  637-672, 2020.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import osqp
+import scipy.linalg as sla
+import scipy.sparse as sp
+from numpy.typing import ArrayLike
+
+__all__ = [
+    "LinearMPC",
+    "MPCSolution",
+    "UnconstrainedGain",
+    "terminal_cost_dare",
+    "terminal_cost_lyapunov",
+]
+
+_BIG = 1e30  # OSQP_INFTY: bounds beyond this are treated as infinite by OSQP
+_SOLVED = 1
+_SOLVED_INACCURATE = 2
+# statuses worth a second, relaxed-and-polished attempt (time-limit hits are final)
+_RESCUE = (2, 3, 4, 7)  # solved inaccurate, primal infeasible (+inaccurate), max iter
+_STATUS_INVALID_INPUT = -1
+_STATUS_EXCEPTION = -2
+
+_DEFAULT_OSQP: dict[str, Any] = {
+    "eps_abs": 1e-6,
+    "eps_rel": 1e-6,
+    "max_iter": 4000,
+    "polishing": False,
+    "check_dualgap": False,
+    "verbose": False,
+    "warm_starting": True,
+}
+_RENAMED_SETTINGS = {"polish": "polishing", "warm_start": "warm_starting"}
+_SOFT_GROUPS = ("y", "H_y", "H_x", "xN", "H_N")
+
+
+# ---------------------------------------------------------------------------
+# results
+# ---------------------------------------------------------------------------
+@dataclass(slots=True)
+class MPCSolution:
+    """Result of one :meth:`LinearMPC.solve` call.
+
+    Attributes:
+        u0: first input to apply (absolute), shape ``(m,)``; always finite and
+            inside the input and rate bounds.
+        du0: ``u0 - u_prev``, shape ``(m,)``.
+        U: planned absolute inputs ``u_0 .. u_{Nc-1}``, shape ``(Nc, m)``.
+        X: predicted states ``x_1 .. x_{Np}``, shape ``(Np, n)`` (NaN only if the
+            inputs of :meth:`LinearMPC.solve` were not finite).
+        Y: predicted outputs ``y_1 .. y_{Np}``, shape ``(Np, p)``.
+        status: OSQP status string (``"solved"``, ``"solved inaccurate"``,
+            ``"maximum iterations reached"``, ...) or ``"invalid input"`` /
+            ``"solver error"`` when OSQP was not (successfully) called.
+        status_val: OSQP status value (1 solved, 2 solved inaccurate, ...); -1
+            invalid (non-finite) input, -2 solver exception.
+        iterations: ADMM iterations.
+        solve_time_s: OSQP's own solve time (``info.solve_time``), seconds.
+        overhead_s: wall time of :meth:`LinearMPC.solve` minus ``solve_time_s``
+            (vector updates, warm start, result assembly), seconds.
+        slack_max: largest soft-constraint violation (0 when all soft
+            constraints hold), in the units of the constrained quantity.
+        fallback: True when the QP solution was not used and ``u0`` comes from
+            the shifted previous plan or from holding the previous input.
+        cost: value of the MPC cost (including slack penalties) of the plan.
+    """
+
+    u0: np.ndarray
+    du0: np.ndarray
+    U: np.ndarray
+    X: np.ndarray
+    Y: np.ndarray
+    status: str
+    status_val: int
+    iterations: int
+    solve_time_s: float
+    overhead_s: float
+    slack_max: float
+    fallback: bool
+    cost: float
+
+    @property
+    def ok(self) -> bool:
+        """True when the QP was solved to the requested accuracy."""
+        return self.status_val == _SOLVED and not self.fallback
+
+
+@dataclass(frozen=True)
+class UnconstrainedGain:
+    r"""Analytic first move of the unconstrained MPC (condensed normal equations).
+
+    ``u0 = Kx x0 + Ku u_prev + Kr vec(y_ref) + Kd d + KD vec(D) + Kur vec(u_ref)
+    + KxN x_ref_N``, where ``vec`` stacks the rows of the ``(Np, .)`` arrays, ``d`` is
+    a constant affine term and ``D`` an ``(Np, n)`` sequence.  ``Kur`` / ``KxN`` are
+    ``None`` when the controller has no ``S`` / state terminal weight.
+    """
+
+    Kx: np.ndarray
+    Ku: np.ndarray
+    Kr: np.ndarray
+    Kd: np.ndarray
+    KD: np.ndarray
+    Kur: np.ndarray | None
+    KxN: np.ndarray | None
+    Np: int
+    p: int
+
+    def apply(
+        self,
+        x0: ArrayLike,
+        u_prev: ArrayLike,
+        y_ref: ArrayLike,
+        d: ArrayLike | None = None,
+        u_ref: ArrayLike | None = None,
+        x_ref_N: ArrayLike | None = None,
+    ) -> np.ndarray:
+        """Evaluate the unconstrained first move for the given data."""
+        m = self.Kx.shape[0]
+        r = np.broadcast_to(np.asarray(y_ref, float), (self.Np, self.p))
+        u = self.Kx @ np.asarray(x0, float) + self.Ku @ np.asarray(u_prev, float)
+        u = u + self.Kr @ r.ravel()
+        if d is not None:
+            d_ = np.asarray(d, float)
+            u = u + (self.Kd @ d_ if d_.ndim == 1 else self.KD @ d_.ravel())
+        if self.Kur is not None and u_ref is not None:
+            ur = np.broadcast_to(np.asarray(u_ref, float), (self.Np, m))
+            u = u + self.Kur @ ur.ravel()
+        if self.KxN is not None:
+            if x_ref_N is None:
+                raise ValueError("x_ref_N is required with a state terminal weight")
+            u = u + self.KxN @ np.asarray(x_ref_N, float)
+        return u
+
+
+# ---------------------------------------------------------------------------
+# terminal-cost helpers
+# ---------------------------------------------------------------------------
+def terminal_cost_dare(
+    A: ArrayLike, B: ArrayLike, Qx: ArrayLike, R: ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Infinite-horizon LQR terminal weight.
+
+    Solves :math:`P = A^\top P A - A^\top P B (R + B^\top P B)^{-1} B^\top P A + Q_x`
+    and returns ``(P, K)`` with :math:`K = (R + B^\top P B)^{-1} B^\top P A`
+    (control law :math:`u = -K x`).
+    """
+    A_ = _matrix("A", A)
+    n = A_.shape[0]
+    if A_.shape != (n, n):
+        raise ValueError(f"A must be square, got shape {A_.shape}")
+    B_ = _matrix("B", B, column=True)
+    if B_.shape[0] != n:
+        raise ValueError(f"B must have {n} rows to match A, got shape {B_.shape}")
+    m = B_.shape[1]
+    Q_ = _weight("Qx", Qx, n)
+    R_ = _weight("R", R, m)
+    try:
+        P = sla.solve_discrete_are(A_, B_, Q_, R_)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ValueError(f"terminal_cost_dare: no stabilising solution ({exc})") from exc
+    P = 0.5 * (P + P.T)
+    K = np.linalg.solve(R_ + B_.T @ P @ B_, B_.T @ P @ A_)
+    return P, K
+
+
+def terminal_cost_lyapunov(A_cl: ArrayLike, Qx: ArrayLike) -> np.ndarray:
+    r"""Terminal weight of a fixed stabilising closed loop :math:`x^+ = A_{cl} x`.
+
+    Returns ``P`` with :math:`A_{cl}^\top P A_{cl} - P + Q_x = 0` (the cost-to-go
+    :math:`\sum_k x_k^\top Q_x x_k`).  For a local law ``u = -K x`` pass
+    ``A_cl = A - B K`` and ``Qx + K.T @ R @ K``.  Raises ``ValueError`` if
+    ``A_cl`` is not Schur stable.
+    """
+    Acl = _matrix("A_cl", A_cl)
+    n = Acl.shape[0]
+    if Acl.shape != (n, n):
+        raise ValueError(f"A_cl must be square, got shape {Acl.shape}")
+    Q_ = _weight("Qx", Qx, n)
+    rad = float(np.max(np.abs(np.linalg.eigvals(Acl)))) if n else 0.0
+    if rad >= 1.0:
+        raise ValueError(f"A_cl must be Schur stable (spectral radius {rad:.6g} >= 1)")
+    P = sla.solve_discrete_lyapunov(Acl.T, Q_)
+    return 0.5 * (P + P.T)
+
+
+# ---------------------------------------------------------------------------
+# validation helpers
+# ---------------------------------------------------------------------------
+def _matrix(name: str, value: ArrayLike, *, column: bool = False) -> np.ndarray:
+    try:
+        a = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a real matrix, got {value!r}") from exc
+    if a.ndim == 0:
+        a = a.reshape(1, 1)
+    elif a.ndim == 1:
+        a = a.reshape(-1, 1) if column else a.reshape(1, -1)
+    if a.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D matrix, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must contain only finite values")
+    return a
+
+
+def _weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
+    """Scalar, diagonal (vector) or full symmetric PSD weight -> (dim, dim) matrix."""
+    try:
+        w = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a real matrix, got {value!r}") from exc
+    if w.ndim == 0:
+        w = w * np.eye(dim)
+    elif w.ndim == 1:
+        if w.shape[0] != dim:
+            raise ValueError(f"{name} must have shape ({dim},) or ({dim}, {dim}), got {w.shape}")
+        w = np.diag(w)
+    if w.shape != (dim, dim):
+        raise ValueError(f"{name} must have shape ({dim}, {dim}), got {w.shape}")
+    if not np.all(np.isfinite(w)):
+        raise ValueError(f"{name} must contain only finite values")
+    scale = max(1.0, float(np.max(np.abs(w)))) if dim else 1.0
+    if np.max(np.abs(w - w.T), initial=0.0) > 1e-9 * scale:
+        raise ValueError(f"{name} must be symmetric")
+    w = 0.5 * (w + w.T)
+    if dim and float(np.min(np.linalg.eigvalsh(w))) < -1e-10 * scale:
+        raise ValueError(f"{name} must be positive semidefinite")
+    return w
+
+
+def _vector(name: str, value: ArrayLike, dim: int, *, allow_inf: bool = False) -> np.ndarray:
+    try:
+        v = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be real numbers, got {value!r}") from exc
+    if v.ndim == 0:
+        v = np.full(dim, float(v))
+    if v.shape != (dim,):
+        raise ValueError(f"{name} must have shape ({dim},), got {v.shape}")
+    if np.any(np.isnan(v)) or (not allow_inf and not np.all(np.isfinite(v))):
+        raise ValueError(f"{name} must contain only {'non-NaN' if allow_inf else 'finite'} values")
+    return v
+
+
+def _check_order(lo_name: str, lo: np.ndarray, hi_name: str, hi: np.ndarray) -> None:
+    bad = np.flatnonzero(lo > hi)
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{lo_name}[{i}] ({lo[i]}) > {hi_name}[{i}] ({hi[i]})")
+
+
+def _psd_sqrt(W: np.ndarray) -> np.ndarray:
+    """Return L with L.T @ L == W for a symmetric PSD W (rows of zero weight dropped)."""
+    lam, V = np.linalg.eigh(W)
+    keep = lam > 1e-14 * max(1.0, float(np.max(np.abs(lam), initial=0.0)))
+    return np.sqrt(lam[keep])[:, None] * V[:, keep].T
+
+
+def _csc_pattern(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Column-major (CSC) structure of a boolean mask: (rows, cols, indptr, indices)."""
+    cols, rows = np.nonzero(mask.T)
+    indptr = np.zeros(mask.shape[1] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cols, minlength=mask.shape[1]), out=indptr[1:])
+    return rows, cols, indptr, rows.astype(np.int64)
+
+
+class _Group:
+    """One family of output/state constraints (before the soft/hard split)."""
+
+    def __init__(
+        self,
+        name: str,
+        on: str,
+        stages: np.ndarray,
+        G: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        rho: np.ndarray,
+        two_sided: bool,
+        cols: np.ndarray,
+        dim_full: int,
+    ) -> None:
+        self.name = name
+        self.on = on  # "x" or "y"
+        self.stages = stages  # 1-based prediction stages
+        self.G = G  # (r, n or p)
+        self.lo = lo
+        self.hi = hi
+        self.rho = rho  # per row; inf -> hard
+        self.two_sided = two_sided
+        self.cols = cols  # original rows kept (indices into the construction-time rows)
+        self.dim_full = dim_full  # number of construction-time rows (before dropping)
+        self.lb_pos = np.empty((0, 0), dtype=np.int64)  # (stages, r) index into bound prefix
+        self.ub_pos = np.empty((0, 0), dtype=np.int64)
+
+
+# ---------------------------------------------------------------------------
+# OSQP access
+# ---------------------------------------------------------------------------
+_Stats = tuple[int, str, int, float, float, int]
+
+
+class _Backend:
+    """Thin OSQP adapter: compiled solver object when available, public API otherwise."""
+
+    def __init__(
+        self,
+        P: sp.csc_matrix,
+        q: np.ndarray,
+        A: sp.csc_matrix,
+        l: np.ndarray,  # noqa: E741
+        u: np.ndarray,
+        settings: dict[str, Any],
+        fast: bool,
+    ) -> None:
+        self.prob = osqp.OSQP()
+        try:
+            self.prob.setup(P, q, A, l, u, **settings)
+        except ValueError as exc:
+            raise ValueError(f"osqp_settings rejected by OSQP: {exc}") from exc
+        raw = getattr(self.prob, "_solver", None)
+        needed = ("update_data_vec", "update_data_mat", "warm_start", "solve", "solution", "info")
+        self.raw = (
+            raw if fast and raw is not None and all(hasattr(raw, a) for a in needed) else None
+        )
+
+    def update_vec(self, q: np.ndarray, l: np.ndarray, u: np.ndarray) -> int:  # noqa: E741
+        if self.raw is not None:
+            return int(self.raw.update_data_vec(q, l, u))
+        self.prob.update(q=q, l=l, u=u)
+        return 0
+
+    def update_mat(self, Px: np.ndarray, Ax: np.ndarray) -> None:
+        if self.raw is not None:
+            rc = self.raw.update_data_mat(Px, None, Ax, None)
+            if rc:
+                raise RuntimeError(f"OSQP rejected the matrix update (error {rc})")
+        else:
+            self.prob.update(Px=Px, Ax=Ax)
+
+    def warm_start(self, x: np.ndarray, y: np.ndarray) -> None:
+        if self.raw is not None:
+            self.raw.warm_start(x, y)
+        else:
+            self.prob.warm_start(x=x, y=y)
+
+    def solve(self) -> tuple[np.ndarray, np.ndarray, _Stats]:
+        """Run OSQP; return ``x, y`` and ``(status_val, status, iter, time, obj, polish)``."""
+        if self.raw is not None:
+            raw = self.raw
+            raw.solve()
+            sol = raw.solution
+            info = raw.info
+            x, y = sol.x, sol.y
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", PendingDeprecationWarning)
+                res = self.prob.solve(raise_error=False)
+            info = res.info
+            x, y = res.x, res.y
+        stats = (
+            int(info.status_val),
+            info.status,
+            int(info.iter),
+            info.solve_time + info.polish_time,
+            info.obj_val,
+            int(info.status_polish),
+        )
+        return x, y, stats
+
+    def rescue(
+        self, x: np.ndarray, y: np.ndarray, eps: float, polishing: bool, restore: dict[str, Any]
+    ) -> tuple[np.ndarray, np.ndarray, _Stats]:
+        """Continue from ``(x, y)`` with tolerance ``eps`` and polishing, then restore settings."""
+        self.prob.update_settings(eps_abs=eps, eps_rel=eps, polishing=polishing)
+        try:
+            self.warm_start(x, y)
+            return self.solve()
+        finally:
+            self.prob.update_settings(**restore)
+
+
+# ---------------------------------------------------------------------------
+# controller
+# ---------------------------------------------------------------------------
+class LinearMPC:
+    r"""Condensed linear MPC solved with OSQP (see the module docstring for the QP).
+
+    Args:
+        A, B, C: model matrices, shapes ``(n, n)``, ``(n, m)``, ``(p, n)``;
+            ``C=None`` means ``C = I`` (state tracking).
+        Np: prediction horizon (>= 1).  Nc: control horizon, ``1 <= Nc <= Np``
+            (default ``Np``); inputs are held after ``Nc``.
+        Q: output weight ``(p, p)`` (scalar or diagonal vector accepted).
+        R: weight on input increments ``Delta u`` ``(m, m)``.
+        S: optional weight on input levels ``u_i - u_ref_i`` ``(m, m)``.
+        P: optional terminal weight: ``(n, n)`` on ``x_Np - x_ref_N``
+            (``terminal="state"``, default) or ``(p, p)`` on ``y_Np - r_Np``
+            (``terminal="output"``).
+        u_min, u_max: hard input bounds ``(m,)`` (scalars broadcast; +-inf allowed).
+        du_min, du_max: hard increment bounds ``(m,)``; ``None`` = unbounded.
+        y_min, y_max: output box ``(p,)`` at stages ``1..Np``; rows with both
+            bounds infinite are dropped (they cannot be given per-stage values
+            later).
+        H_y, h_y: output polyhedron ``H_y y_i <= h_y`` (``(r, p)``, ``(r,)``).
+        H_x, h_x: state polyhedron ``H_x x_i <= h_x`` (``(r, n)``, ``(r,)``).
+        xN_min, xN_max, H_N, h_N: terminal state box / polyhedron at ``x_Np``.
+        soft_penalty: exact-penalty weight rho: a scalar for all output/state
+            constraints, or a mapping with keys ``"y"``, ``"H_y"``, ``"H_x"``,
+            ``"xN"``, ``"H_N"`` whose values are scalars or per-row vectors
+            (missing keys use 1e5).  ``np.inf`` makes a row hard.
+        soft_quadratic: gamma of the strictly convex term ``gamma_k * eps_k^2``; ``None``
+            (default) uses ``gamma_k = 0.01 * rho_k`` per row.  For physically small
+            violations this term is negligible next to ``rho_k * eps_k`` (it never
+            changes the exact-penalty threshold), but its curvature makes violated
+            problems far easier for ADMM (measured: 0 instead of ~10 % unsolved
+            violated steps with ``gamma = 1``).
+        delta_u: decision variables are increments (default) or absolute inputs.
+        terminal: ``"state"`` or ``"output"`` (what ``P`` weights).
+        osqp_settings: overrides of the default OSQP settings (``eps_abs``,
+            ``eps_rel``, ``max_iter``, ``polishing``, ``time_limit``, ...).
+        fast_osqp: call OSQP's compiled solver object directly (default True).
+        warm_start: ``"shift"`` (default): start OSQP from the previous primal/dual
+            solution shifted by one stage; ``"previous"``: from the previous
+            solution as is; ``"none"``: let OSQP start from its last iterate.
+    """
+
+    def __init__(
+        self,
+        A: ArrayLike,
+        B: ArrayLike,
+        C: ArrayLike | None = None,
+        *,
+        Np: int,
+        Nc: int | None = None,
+        Q: ArrayLike,
+        R: ArrayLike,
+        S: ArrayLike | None = None,
+        P: ArrayLike | None = None,
+        u_min: ArrayLike,
+        u_max: ArrayLike,
+        du_min: ArrayLike | None = None,
+        du_max: ArrayLike | None = None,
+        y_min: ArrayLike | None = None,
+        y_max: ArrayLike | None = None,
+        H_y: ArrayLike | None = None,
+        h_y: ArrayLike | None = None,
+        H_x: ArrayLike | None = None,
+        h_x: ArrayLike | None = None,
+        xN_min: ArrayLike | None = None,
+        xN_max: ArrayLike | None = None,
+        H_N: ArrayLike | None = None,
+        h_N: ArrayLike | None = None,
+        soft_penalty: float | Mapping[str, float | ArrayLike] = 1e5,
+        soft_quadratic: float | None = None,
+        delta_u: bool = True,
+        terminal: str = "state",
+        osqp_settings: Mapping[str, Any] | None = None,
+        fast_osqp: bool = True,
+        warm_start: str = "shift",
+    ) -> None:
+        # ---- model ---------------------------------------------------------
+        A_, B_, C_ = self._check_model(A, B, C, None)
+        n, m, p = A_.shape[0], B_.shape[1], C_.shape[0]
+        self.n, self.m, self.p = n, m, p
+        self._A, self._B, self._C = A_, B_, C_
+
+        if isinstance(Np, bool) or not isinstance(Np, int | np.integer) or Np < 1:
+            raise ValueError(f"Np must be an integer >= 1, got {Np!r}")
+        Nc = Np if Nc is None else Nc
+        if isinstance(Nc, bool) or not isinstance(Nc, int | np.integer) or not 1 <= Nc <= Np:
+            raise ValueError(f"Nc must be an integer with 1 <= Nc <= Np ({Np}), got {Nc!r}")
+        self.Np, self.Nc = int(Np), int(Nc)
+        self.delta_u = bool(delta_u)
+        if terminal not in ("state", "output"):
+            raise ValueError(f"terminal must be 'state' or 'output', got {terminal!r}")
+        self.terminal = terminal
+
+        # ---- weights -------------------------------------------------------
+        self._Q = _weight("Q", Q, p)
+        self._R = _weight("R", R, m)
+        self._S = None if S is None else _weight("S", S, m)
+        self._P = None if P is None else _weight("P", P, n if terminal == "state" else p)
+        self._gamma = None if soft_quadratic is None else self._check_gamma(soft_quadratic)
+
+        # ---- input constraints ---------------------------------------------
+        self._umin = _vector("u_min", u_min, m, allow_inf=True)
+        self._umax = _vector("u_max", u_max, m, allow_inf=True)
+        _check_order("u_min", self._umin, "u_max", self._umax)
+        self._dumin = (
+            np.full(m, -np.inf) if du_min is None else _vector("du_min", du_min, m, allow_inf=True)
+        )
+        self._dumax = (
+            np.full(m, np.inf) if du_max is None else _vector("du_max", du_max, m, allow_inf=True)
+        )
+        _check_order("du_min", self._dumin, "du_max", self._dumax)
+        self._has_du = bool(np.any(np.isfinite(self._dumin)) or np.any(np.isfinite(self._dumax)))
+        self._umin_l, self._umax_l = self._umin.tolist(), self._umax.tolist()
+        self._dumin_l, self._dumax_l = self._dumin.tolist(), self._dumax.tolist()
+        self._ncm, self._npn = self.Nc * m, self.Np * n
+        if warm_start not in ("shift", "previous", "none"):
+            raise ValueError(
+                f"warm_start must be 'shift', 'previous' or 'none', got {warm_start!r}"
+            )
+        self._ws_mode = warm_start
+
+        # ---- output / state constraints --------------------------------------
+        self._groups = self._make_groups(
+            y_min, y_max, H_y, h_y, H_x, h_x, xN_min, xN_max, H_N, h_N, soft_penalty
+        )
+
+        # ---- OSQP settings ---------------------------------------------------
+        settings = dict(_DEFAULT_OSQP)
+        for k, v in dict(osqp_settings or {}).items():
+            settings[_RENAMED_SETTINGS.get(k, k)] = v
+        self.osqp_settings = settings
+
+        self._layout()
+        self._build()
+        P0 = sp.csc_matrix(
+            (self._P_dense[self._P_rows, self._P_cols], self._P_ind, self._P_ptr),
+            shape=(self._nv, self._nv),
+        )
+        A0 = sp.csc_matrix(
+            (self._A_dense[self._A_rows, self._A_cols], self._A_ind, self._A_ptr),
+            shape=(self._nA, self._nv),
+        )
+        self._backend = _Backend(P0, self._q_init(), A0, self._l, self._u, settings, fast_osqp)
+        self.reset()
+
+    # ------------------------------------------------------------------ checks
+    def _check_model(
+        self, A: ArrayLike, B: ArrayLike, C: ArrayLike | None, dims: tuple[int, int, int] | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        A_ = _matrix("A", A)
+        n = A_.shape[0]
+        if A_.shape != (n, n):
+            raise ValueError(f"A must be square, got shape {A_.shape}")
+        B_ = _matrix("B", B, column=True)
+        if B_.shape[0] != n:
+            raise ValueError(f"B must have shape ({n}, m) to match A, got {B_.shape}")
+        C_ = np.eye(n) if C is None else _matrix("C", C)
+        if C_.shape[1] != n:
+            raise ValueError(f"C must have shape (p, {n}) to match A, got {C_.shape}")
+        if dims is not None and (n, B_.shape[1], C_.shape[0]) != dims:
+            raise ValueError(
+                f"set_model must keep the dimensions (n, m, p) = {dims}, "
+                f"got {(n, B_.shape[1], C_.shape[0])}"
+            )
+        return A_, B_, C_
+
+    @staticmethod
+    def _check_gamma(value: float) -> float:
+        g = float(value)
+        if not math.isfinite(g) or g < 0:
+            raise ValueError(f"soft_quadratic must be finite and >= 0, got {value!r}")
+        return g
+
+    @staticmethod
+    def _penalty(name: str, soft_penalty: Any, rows: int) -> np.ndarray:
+        if isinstance(soft_penalty, Mapping):
+            unknown = set(soft_penalty) - set(_SOFT_GROUPS)
+            if unknown:
+                raise ValueError(
+                    f"soft_penalty keys must be among {_SOFT_GROUPS}, got {sorted(unknown)}"
+                )
+            val = soft_penalty.get(name, 1e5)
+        else:
+            val = soft_penalty
+        rho = _vector(f"soft_penalty[{name!r}]", val, rows, allow_inf=True)
+        if np.any(rho <= 0):
+            raise ValueError(f"soft_penalty[{name!r}] must be > 0 (np.inf for hard), got {rho}")
+        return rho
+
+    def _make_groups(
+        self,
+        y_min: ArrayLike | None,
+        y_max: ArrayLike | None,
+        H_y: ArrayLike | None,
+        h_y: ArrayLike | None,
+        H_x: ArrayLike | None,
+        h_x: ArrayLike | None,
+        xN_min: ArrayLike | None,
+        xN_max: ArrayLike | None,
+        H_N: ArrayLike | None,
+        h_N: ArrayLike | None,
+        soft_penalty: Any,
+    ) -> list[_Group]:
+        n, p, Np = self.n, self.p, self.Np
+        _check_penalty_arg(soft_penalty)
+        groups: list[_Group] = []
+        all_stages = np.arange(1, Np + 1)
+
+        def box(name: str, lo_v: Any, hi_v: Any, dim: int, on: str, stages: np.ndarray) -> None:
+            if lo_v is None and hi_v is None:
+                return
+            lo_name, hi_name = {"y": ("y_min", "y_max"), "xN": ("xN_min", "xN_max")}[name]
+            lo = (
+                np.full(dim, -np.inf)
+                if lo_v is None
+                else _vector(lo_name, lo_v, dim, allow_inf=True)
+            )
+            hi = (
+                np.full(dim, np.inf)
+                if hi_v is None
+                else _vector(hi_name, hi_v, dim, allow_inf=True)
+            )
+            _check_order(lo_name, lo, hi_name, hi)
+            rho = self._penalty(name, soft_penalty, dim)
+            keep = np.flatnonzero(np.isfinite(lo) | np.isfinite(hi))
+            if keep.size:
+                G = np.eye(dim)[keep]
+                groups.append(
+                    _Group(name, on, stages, G, lo[keep], hi[keep], rho[keep], True, keep, dim)
+                )
+
+        def poly(name: str, H: Any, h: Any, dim: int, on: str, stages: np.ndarray) -> None:
+            if H is None and h is None:
+                return
+            hn = "h" + name[1:]
+            if H is None or h is None:
+                raise ValueError(f"{name} and {hn} must be given together")
+            H_ = _matrix(name, H)
+            if H_.shape[1] != dim:
+                raise ValueError(f"{name} must have shape (r, {dim}), got {H_.shape}")
+            r = H_.shape[0]
+            h_ = _vector(hn, h, r, allow_inf=True)
+            if np.any(h_ == -np.inf):
+                raise ValueError(f"{hn} must not contain -inf (the constraint could never hold)")
+            rho = self._penalty(name, soft_penalty, r)
+            keep = np.flatnonzero(np.isfinite(h_))
+            if keep.size:
+                groups.append(
+                    _Group(
+                        name,
+                        on,
+                        stages,
+                        H_[keep],
+                        np.full(keep.size, -np.inf),
+                        h_[keep],
+                        rho[keep],
+                        False,
+                        keep,
+                        r,
+                    )
+                )
+
+        box("y", y_min, y_max, p, "y", all_stages)
+        poly("H_y", H_y, h_y, p, "y", all_stages)
+        poly("H_x", H_x, h_x, n, "x", all_stages)
+        box("xN", xN_min, xN_max, n, "x", np.array([Np]))
+        poly("H_N", H_N, h_N, n, "x", np.array([Np]))
+        return groups
+
+    # ------------------------------------------------------------------ layout
+    def _layout(self) -> None:
+        """Fix the variable/row layout, sparsity patterns and parameter slots."""
+        n, m, p, Np, Nc = self.n, self.m, self.p, self.Np, self.Nc
+        nz = Nc * m
+        self._nz = nz
+
+        # parameter vector theta = [1, x0, u_prev, r, (xN), d, (u_ref), D]
+        slots: dict[str, slice] = {}
+        pos = 0
+        for name, size, present in (
+            ("one", 1, True),
+            ("x0", n, True),
+            ("up", m, True),
+            ("r", Np * p, True),
+            ("xN", n, self._P is not None and self.terminal == "state"),
+            ("d", n, True),
+            ("ur", Np * m, self._S is not None),
+            ("D", Np * n, True),
+        ):
+            if present:
+                slots[name] = slice(pos, pos + size)
+                pos += size
+        self._slots = slots
+        self._ntheta = pos
+        self._nb = slots["D"].start  # parameters without the D sequence
+
+        # constraint rows ----------------------------------------------------
+        # each output/state row: (group index, stage, row-in-group)
+        con_g, con_s, con_r, con_lo, con_hi, con_rho, con_two = [], [], [], [], [], [], []
+        for gi, g in enumerate(self._groups):
+            R_ = g.G.shape[0]
+            K = g.stages.size
+            con_g.append(np.full(K * R_, gi))
+            con_s.append(np.repeat(g.stages, R_))
+            con_r.append(np.tile(np.arange(R_), K))
+            con_lo.append(np.tile(g.lo, K))
+            con_hi.append(np.tile(g.hi, K))
+            con_rho.append(np.tile(g.rho, K))
+            con_two.append(np.full(K * R_, g.two_sided))
+
+        def cat(parts: list[np.ndarray], dtype: Any) -> np.ndarray:
+            return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
+        cg, cs, cr = cat(con_g, np.int64), cat(con_s, np.int64), cat(con_r, np.int64)
+        clo, chi, crho = cat(con_lo, float), cat(con_hi, float), cat(con_rho, float)
+        ctwo = cat(con_two, bool)
+        soft = np.isfinite(crho)
+        hard_c = np.flatnonzero(~soft)
+        soft_c = np.flatnonzero(soft)
+        soft2_c = soft_c[ctwo[soft_c]]  # soft rows that also get a lower-side row
+        self._con = {"g": cg, "s": cs, "r": cr, "lo": clo, "hi": chi, "rho": crho}
+        self._hard_c, self._soft_c, self._soft2_c = hard_c, soft_c, soft2_c
+        ns = soft_c.size
+        self._ns = ns
+        self._nv = nz + ns
+
+        n_u = nz
+        n_du = nz if self._has_du else 0
+        nh = n_u + n_du + hard_c.size
+        self._nh = nh
+        self._nlu = nh + ns + soft2_c.size  # rows whose bounds change per step
+        self._nA = self._nlu + ns
+
+        # base bounds (prefix) -------------------------------------------------
+        Lb = np.empty(self._nlu)
+        Ub = np.empty(self._nlu)
+        Lb[:n_u] = np.tile(self._umin, Nc)
+        Ub[:n_u] = np.tile(self._umax, Nc)
+        Lb[n_u : n_u + n_du] = np.tile(self._dumin, Nc)
+        Ub[n_u : n_u + n_du] = np.tile(self._dumax, Nc)
+        o = n_u + n_du
+        Lb[o:nh] = clo[hard_c]
+        Ub[o:nh] = chi[hard_c]
+        Lb[nh : nh + ns] = -np.inf
+        Ub[nh : nh + ns] = chi[soft_c]
+        Lb[nh + ns :] = clo[soft2_c]
+        Ub[nh + ns :] = np.inf
+        self._Lb0 = np.clip(Lb, -_BIG, _BIG)
+        self._Ub0 = np.clip(Ub, -_BIG, _BIG)
+        self._Lb = self._Lb0.copy()
+        self._Ub = self._Ub0.copy()
+        self._bounds_dirty = False
+        self._l = np.empty(self._nA)
+        self._u = np.empty(self._nA)
+        self._l[: self._nlu] = self._Lb0
+        self._u[: self._nlu] = self._Ub0
+        self._l[self._nlu :] = 0.0
+        self._u[self._nlu :] = _BIG
+        kk = np.arange(1, Nc + 1, dtype=float)[:, None]
+        with np.errstate(invalid="ignore"):
+            self._k_dumax = kk * self._dumax[None, :]  # (Nc, m): reach of k rate steps
+            self._k_dumin = kk * self._dumin[None, :]
+        self._umin_t = np.tile(self._umin, (Nc, 1))
+        self._umax_t = np.tile(self._umax, (Nc, 1))
+
+        # positions of each group's (stage, row) in the bound prefix (for overrides)
+        hard_pos = np.full(cg.size, -1)
+        hard_pos[hard_c] = o + np.arange(hard_c.size)
+        up_pos = np.full(cg.size, -1)
+        up_pos[soft_c] = nh + np.arange(ns)
+        lo_pos = np.full(cg.size, -1)
+        lo_pos[soft2_c] = nh + ns + np.arange(soft2_c.size)
+        ub_all = np.where(hard_pos >= 0, hard_pos, up_pos)
+        lb_all = np.where(hard_pos >= 0, hard_pos, lo_pos)
+        for gi, g in enumerate(self._groups):
+            idx = np.flatnonzero(cg == gi)
+            shape = (g.stages.size, g.G.shape[0])
+            g.ub_pos = ub_all[idx].reshape(shape)
+            g.lb_pos = lb_all[idx].reshape(shape)
+
+        # sparsity patterns -------------------------------------------------------
+        # z-columns of output/state rows: block j of z influences stage i iff j <= i-1
+        blk = np.arange(nz) // m
+        cmask = blk[None, :] <= (cs[:, None] - 1)  # (ncon, nz)
+        if self.delta_u:
+            Tz_c = np.kron(np.tril(np.ones((Nc, Nc))), np.eye(m))
+            Dz = np.eye(nz)
+        else:
+            Tz_c = np.eye(nz)
+            Dz = np.eye(nz) - np.eye(nz, k=-m)
+        Amask = np.zeros((self._nA, self._nv), dtype=bool)
+        Amask[:n_u, :nz] = Tz_c != 0
+        Amask[n_u : n_u + n_du, :nz] = Dz != 0
+        Amask[o:nh, :nz] = cmask[hard_c]
+        Amask[nh : nh + ns, :nz] = cmask[soft_c]
+        Amask[nh + ns : self._nlu, :nz] = cmask[soft2_c]
+        sl = np.arange(ns)
+        Amask[nh + sl, nz + sl] = True
+        if soft2_c.size:
+            Amask[nh + ns + np.arange(soft2_c.size), nz + np.searchsorted(soft_c, soft2_c)] = True
+        Amask[self._nlu + sl, nz + sl] = True
+        Pmask = np.zeros((self._nv, self._nv), dtype=bool)
+        Pmask[:nz, :nz] = np.triu(np.ones((nz, nz), dtype=bool))
+        Pmask[nz + sl, nz + sl] = True
+        self._Amask, self._Pmask = Amask, Pmask
+        self._A_rows, self._A_cols, self._A_ptr, self._A_ind = _csc_pattern(Amask)
+        self._P_rows, self._P_cols, self._P_ptr, self._P_ind = _csc_pattern(Pmask)
+
+        # warm-start shift maps ---------------------------------------------------
+        # primal: z block j <- j+1 (last: 0 for Delta u, held u otherwise); slacks by stage
+        zsrc = np.arange(nz) + m
+        last = np.arange(nz - m, nz)
+        zsrc[-m:] = self._nv if self.delta_u else last  # index nv -> the appended 0
+        key_to_con = {
+            (g_, s_, r_): k for k, (g_, s_, r_) in enumerate(zip(cg, cs, cr, strict=True))
+        }
+
+        def next_con(k: int) -> int:
+            return key_to_con.get((cg[k], cs[k] + 1, cr[k]), k)
+
+        soft_index = {int(c): i for i, c in enumerate(soft_c)}
+        soft2_index = {int(c): i for i, c in enumerate(soft2_c)}
+        hard_index = {int(c): i for i, c in enumerate(hard_c)}
+        esrc = np.array([soft_index[next_con(int(c))] for c in soft_c], dtype=np.int64)
+        self._xshift = np.concatenate([zsrc, nz + esrc]).astype(np.int64)
+        # dual: same stage shift row by row
+        ysrc = np.arange(self._nA)
+        ublk = np.arange(n_u) + m
+        ublk[-m:] -= m
+        ysrc[:n_u] = ublk
+        if n_du:
+            ysrc[n_u : n_u + n_du] = n_u + ublk
+        ysrc[o:nh] = [o + hard_index[next_con(int(c))] for c in hard_c]
+        ysrc[nh : nh + ns] = nh + esrc
+        ysrc[nh + ns : self._nlu] = [nh + ns + soft2_index[next_con(int(c))] for c in soft2_c]
+        ysrc[self._nlu :] = self._nlu + esrc
+        self._yshift = ysrc.astype(np.int64)
+        self._Tz_c, self._Dz = Tz_c, Dz
+
+    # ------------------------------------------------------------------ build
+    def _sel(self, name: str, ntheta: int) -> np.ndarray:
+        s = self._slots[name]
+        M = np.zeros((s.stop - s.start, ntheta))
+        M[:, s] = np.eye(s.stop - s.start)
+        return M
+
+    def _build(self) -> None:
+        """Compute every model/weight-dependent matrix (dense) and the OSQP values."""
+        n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
+        A, B, C = self._A, self._B, self._C
+        nt = self._ntheta
+        sel = self._sel
+
+        # prediction matrices --------------------------------------------------
+        powers = [np.eye(n)]
+        for _ in range(Np):
+            powers.append(A @ powers[-1])
+        Phi = np.vstack(powers[1:])
+        Gam = np.zeros((Np * n, Np * m))
+        GamD = np.zeros((Np * n, Np * n))
+        for i in range(Np):  # x_{i+1}
+            for t in range(i + 1):
+                Gam[i * n : (i + 1) * n, t * m : (t + 1) * m] = powers[i - t] @ B
+                GamD[i * n : (i + 1) * n, t * n : (t + 1) * n] = powers[i - t]
+        # input parametrisation over the whole prediction horizon
+        hold = np.minimum(np.arange(Np), Nc - 1)  # stage t uses block hold[t]
+        if self.delta_u:
+            blocks = (np.arange(Nc)[None, :] <= hold[:, None]).astype(float)
+            Tu = np.kron(np.ones((Np, 1)), np.eye(m))
+            Du = np.zeros((nz, m))
+        else:
+            blocks = (np.arange(Nc)[None, :] == hold[:, None]).astype(float)
+            Tu = np.zeros((Np * m, m))
+            Du = np.zeros((nz, m))
+            Du[:m] = -np.eye(m)
+        Tz = np.kron(blocks, np.eye(m))
+        Cb = np.kron(np.eye(Np), C)
+
+        Sx = Gam @ Tz  # (Np n, nz)
+        Sy = Cb @ Sx
+        ones_n = np.kron(np.ones((Np, 1)), np.eye(n))
+        Xth = (
+            Phi @ sel("x0", nt)
+            + Gam @ Tu @ sel("up", nt)
+            + GamD @ (ones_n @ sel("d", nt) + sel("D", nt))
+        )
+        Yth = Cb @ Xth
+        Uth = Tu @ sel("up", nt)  # (Np m, nt)
+        dUth = Du @ sel("up", nt)
+
+        # weighted residuals e = Ez z + Eth theta, weights W ----------------------
+        Ez_parts = [Sy, self._Dz]
+        Eth_parts = [Yth - sel("r", nt), dUth]
+        W_parts = [np.kron(np.eye(Np), self._Q), np.kron(np.eye(Nc), self._R)]
+        L_parts = [np.kron(np.eye(Np), _psd_sqrt(self._Q)), np.kron(np.eye(Nc), _psd_sqrt(self._R))]
+        if self._S is not None:
+            Ez_parts.append(Tz)
+            Eth_parts.append(Uth - sel("ur", nt))
+            W_parts.append(np.kron(np.eye(Np), self._S))
+            L_parts.append(np.kron(np.eye(Np), _psd_sqrt(self._S)))
+        if self._P is not None:
+            if self.terminal == "state":
+                Ez_parts.append(Sx[-n:])
+                Eth_parts.append(Xth[-n:] - sel("xN", nt))
+            else:
+                Ez_parts.append(Sy[-p:])
+                Eth_parts.append(Yth[-p:] - sel("r", nt)[-p:])
+            W_parts.append(self._P)
+            L_parts.append(_psd_sqrt(self._P))
+        Ez = np.vstack(Ez_parts)
+        Eth = np.vstack(Eth_parts)
+        W = sla.block_diag(*W_parts)
+        Lw = sla.block_diag(*L_parts)
+        EzW = Ez.T @ W
+        H = EzW @ Ez
+        H = 0.5 * (H + H.T)
+        Fq = 2.0 * EzW @ Eth  # q_z = Fq theta
+        Lth = Lw @ Eth
+        Lth = Lth[np.any(Lth != 0, axis=1)]  # constant cost = ||Lth theta||^2
+
+        # constraint rows ---------------------------------------------------------
+        con = self._con
+        ncon = con["g"].size
+        Gz = np.zeros((ncon, nz))
+        Gth = np.zeros((ncon, nt))
+        for gi, g in enumerate(self._groups):
+            idx = np.flatnonzero(con["g"] == gi)
+            K = g.stages.size
+            dim = p if g.on == "y" else n
+            rows = (g.stages[:, None] - 1) * dim + np.arange(dim)[None, :]  # (K, dim)
+            Sz = (Sy if g.on == "y" else Sx)[rows.ravel()]
+            St = (Yth if g.on == "y" else Xth)[rows.ravel()]
+            GK = np.kron(np.eye(K), g.G)
+            Gz[idx] = GK @ Sz
+            Gth[idx] = GK @ St
+        rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
+        self._rho_s = rho_s
+        self._soft2_slack = np.searchsorted(self._soft_c, self._soft2_c)
+        self._gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
+
+        ns, nh, nlu = self._ns, self._nh, self._nlu
+        n_u = nz
+        n_du = nz if self._has_du else 0
+        o = n_u + n_du
+        # OSQP A (dense image of the fixed pattern)
+        Ad = np.zeros((self._nA, self._nv))
+        Ad[:n_u, :nz] = self._Tz_c
+        Ad[n_u:o, :nz] = self._Dz
+        Ad[o:nh, :nz] = Gz[self._hard_c]
+        Ad[nh : nh + ns, :nz] = Gz[self._soft_c]
+        Ad[nh + ns : nlu, :nz] = Gz[self._soft2_c]
+        sl = np.arange(ns)
+        Ad[nh + sl, nz + sl] = -1.0
+        if self._soft2_c.size:
+            j = np.searchsorted(self._soft_c, self._soft2_c)
+            Ad[nh + ns + np.arange(j.size), nz + j] = 1.0
+        Ad[nlu + sl, nz + sl] = 1.0
+        Pd = np.zeros((self._nv, self._nv))
+        Pd[:nz, :nz] = 2.0 * np.triu(H)
+        Pd[nz + sl, nz + sl] = 2.0 * self._gamma_s
+        if np.any(Ad[~self._Amask] != 0) or np.any(Pd[~self._Pmask] != 0):
+            raise RuntimeError("internal error: QP entries outside the fixed sparsity pattern")
+        self._A_dense, self._P_dense = Ad, Pd
+
+        # the per-step affine map v = M theta ----------------------------------------
+        # v = [q (nv) | constraint offsets (nlu) | U_c, X (, Y) offsets | cost factor]
+        Cth = np.zeros((nlu, nt))
+        Cth[:n_u] = Uth[:nz]
+        Cth[n_u:o] = dUth
+        Cth[o:nh] = Gth[self._hard_c]
+        Cth[nh : nh + ns] = Gth[self._soft_c]
+        Cth[nh + ns :] = Gth[self._soft2_c]
+        qth = np.zeros((self._nv, nt))
+        qth[:nz] = Fq
+        qth[nz:, 0] = rho_s  # column 0 of theta is the constant 1
+        self._y_is_x = p == n and np.array_equal(C, np.eye(n))
+        traj_th = [Uth[:nz], Xth] + ([] if self._y_is_x else [Yth])
+        Wz = np.vstack([self._Tz_c, Sx] + ([] if self._y_is_x else [Sy]))
+        M = np.vstack([qth, Cth] + traj_th + [Lth])
+        self._M_full = np.ascontiguousarray(M)
+        self._M_nd = np.ascontiguousarray(M[:, : self._nb])
+        self._v = np.empty(M.shape[0])
+        self._v_tmp = np.empty(M.shape[0])
+        nv = self._nv
+        self._sl_q = slice(0, nv)
+        self._sl_c = slice(nv, nv + nlu)
+        nt0 = nv + nlu
+        self._sl_traj = slice(nt0, nt0 + Wz.shape[0])
+        self._sl_L = slice(nt0 + Wz.shape[0], M.shape[0])
+        self._Wz = np.ascontiguousarray(Wz)
+        self._Cpinv = np.linalg.pinv(C)
+        # kept for gain_unconstrained() and tests
+        self._H, self._Fq = H, Fq
+        self._Xth, self._Sx = Xth, Sx
+
+    def _q_init(self) -> np.ndarray:
+        q = np.zeros(self._nv)
+        q[self._nz :] = 1.0
+        return q
+
+    def _push_matrices(self) -> None:
+        Px = self._P_dense[self._P_rows, self._P_cols]
+        Ax = self._A_dense[self._A_rows, self._A_cols]
+        self._backend.update_mat(Px, Ax)
+
+    # ------------------------------------------------------------------ public
+    def reset(self) -> None:
+        """Forget the warm start, the last plan and the last applied input."""
+        self._theta = np.zeros(self._ntheta)
+        self._theta[0] = 1.0
+        self._d_dirty = 0  # 0: no d, 1: constant d written, 2: sequence D written
+        self._ur_dirty = False
+        self._ws_x: np.ndarray | None = None
+        self._ws_y: np.ndarray | None = None
+        self._xbuf = np.zeros(self._nv + 1)
+        self._plan: np.ndarray | None = None
+        self._plan_age = 0
+        self._u_last: np.ndarray | None = None
+
+    def set_weights(
+        self,
+        *,
+        Q: ArrayLike | None = None,
+        R: ArrayLike | None = None,
+        S: ArrayLike | None = None,
+        P: ArrayLike | None = None,
+        soft_penalty: float | Mapping[str, float | ArrayLike] | None = None,
+        soft_quadratic: float | None = None,
+    ) -> None:
+        """Change cost weights (``None`` keeps a weight); matrix values are updated in OSQP.
+
+        ``S`` / ``P`` can only be changed if they were given at construction (pass zeros
+        to reserve them).  ``soft_penalty`` may change finite values but cannot turn a
+        soft row hard or vice versa (that would change the QP structure).
+        """
+        Q_ = self._Q if Q is None else _weight("Q", Q, self.p)
+        R_ = self._R if R is None else _weight("R", R, self.m)
+        if S is not None and self._S is None:
+            raise ValueError("S was not given at construction; pass S=0 there to reserve it")
+        if P is not None and self._P is None:
+            raise ValueError("P was not given at construction; pass P=0 there to reserve it")
+        S_ = self._S if S is None else _weight("S", S, self.m)
+        dimP = self.n if self.terminal == "state" else self.p
+        P_ = self._P if P is None else _weight("P", P, dimP)
+        g_ = self._gamma if soft_quadratic is None else self._check_gamma(soft_quadratic)
+        new_rho = None
+        if soft_penalty is not None:
+            _check_penalty_arg(soft_penalty)
+            parts = []
+            for g in self._groups:
+                full = self._penalty(g.name, soft_penalty, g.dim_full)
+                rho_g = full[g.cols]
+                if np.any(np.isfinite(rho_g) != np.isfinite(g.rho)):
+                    raise ValueError(
+                        f"soft_penalty[{g.name!r}] cannot switch rows between soft and hard "
+                        "after construction"
+                    )
+                parts.append(rho_g)
+            new_rho = parts
+        self._Q, self._R, self._S, self._P, self._gamma = Q_, R_, S_, P_, g_
+        if new_rho is not None:
+            for g, rho_g in zip(self._groups, new_rho, strict=True):
+                g.rho = rho_g
+            self._con["rho"] = (
+                np.concatenate([np.tile(g.rho, g.stages.size) for g in self._groups])
+                if self._groups
+                else np.zeros(0)
+            )
+        self._build()
+        self._push_matrices()
+
+    def set_model(self, A: ArrayLike, B: ArrayLike, C: ArrayLike | None = None) -> None:
+        """Replace the model (same dimensions; ``C=None`` keeps the current ``C``)."""
+        A_, B_, C_ = self._check_model(A, B, self._C if C is None else C, (self.n, self.m, self.p))
+        self._A, self._B, self._C = A_, B_, C_
+        self._build()
+        self._push_matrices()
+
+    def gain_unconstrained(self) -> UnconstrainedGain:
+        """First-move gain of the unconstrained problem from the condensed normal equations.
+
+        Without active constraints the minimiser is ``z* = -H^-1 F theta`` with
+        ``H = Ez' W Ez`` and ``F = Ez' W Eth``; the first move is
+        ``u0 = [Tz z* + Tu u_prev]_0``.  Requires ``H`` to be nonsingular.
+        """
+        m = self.m
+        try:
+            Z = -np.linalg.solve(self._H, 0.5 * self._Fq)  # (nz, ntheta)
+        except np.linalg.LinAlgError as exc:
+            raise ValueError("the condensed Hessian is singular (increase R or S)") from exc
+        K = self._Tz_c[:m] @ Z
+        if self.delta_u:
+            K[:, self._slots["up"]] += np.eye(m)
+        s = self._slots
+        g = UnconstrainedGain(
+            Kx=K[:, s["x0"]],
+            Ku=K[:, s["up"]],
+            Kr=K[:, s["r"]],
+            Kd=K[:, s["d"]],
+            KD=K[:, s["D"]],
+            Kur=K[:, s["ur"]] if "ur" in s else None,
+            KxN=K[:, s["xN"]] if "xN" in s else None,
+            Np=self.Np,
+            p=self.p,
+        )
+        return g
+
+    # ------------------------------------------------------------------ solve
+    def solve(
+        self,
+        x0: ArrayLike,
+        u_prev: ArrayLike,
+        y_ref: ArrayLike,
+        *,
+        d: ArrayLike | None = None,
+        u_ref: ArrayLike | None = None,
+        x_ref_N: ArrayLike | None = None,
+        y_min: ArrayLike | None = None,
+        y_max: ArrayLike | None = None,
+        h_y: ArrayLike | None = None,
+        h_x: ArrayLike | None = None,
+    ) -> MPCSolution:
+        """Solve the MPC problem at the current sampling instant.
+
+        Args:
+            x0: current state ``(n,)``.
+            u_prev: input applied at the previous instant ``(m,)``.
+            y_ref: output references ``r_1 .. r_Np`` as ``(Np, p)`` (or ``(p,)``, held).
+            d: affine model term: ``(n,)`` constant or ``(Np, n)`` for ``d_0 .. d_{Np-1}``.
+            u_ref: input-level references ``(Np, m)`` or ``(m,)`` (used with ``S``; default 0).
+            x_ref_N: terminal state reference (state terminal weight only); default
+                ``pinv(C) @ y_ref[-1]`` (exactly ``y_ref[-1]`` when ``C = I``).
+            y_min, y_max, h_y, h_x: per-stage bounds ``(Np, .)`` (or one row, held)
+                replacing the construction-time values for this call only.
+
+        Never raises for non-finite data or solver failures: the result then has
+        ``fallback=True`` and a safe ``u0``.  Wrong shapes raise ``ValueError``.
+        """
+        t_start = time.perf_counter()
+        th = self._theta
+        s = self._slots
+        if (x0.ndim if type(x0) is np.ndarray else np.ndim(x0)) != 1 or (
+            u_prev.ndim if type(u_prev) is np.ndarray else np.ndim(u_prev)
+        ) != 1:
+            raise ValueError(
+                f"solve(): x0 must have shape ({self.n},) and u_prev ({self.m},), got "
+                f"{np.shape(x0)} and {np.shape(u_prev)}"
+            )
+        try:
+            th[s["x0"]] = x0
+            th[s["up"]] = u_prev
+        except ValueError:
+            raise ValueError(
+                f"solve(): x0 must have shape ({self.n},) and u_prev ({self.m},), got "
+                f"{np.shape(x0)} and {np.shape(u_prev)}"
+            ) from None
+        try:
+            th[s["r"]].reshape(self.Np, self.p)[...] = y_ref
+        except ValueError:
+            if self.p == 1 and np.shape(y_ref) == (self.Np,):
+                th[s["r"]] = y_ref
+            else:
+                raise ValueError(
+                    f"solve(): y_ref must have shape ({self.Np}, {self.p}) or ({self.p},), "
+                    f"got {np.shape(y_ref)}"
+                ) from None
+        if "xN" in s:
+            if x_ref_N is None:
+                np.dot(self._Cpinv, th[s["r"]][-self.p :], out=th[s["xN"]])
+            else:
+                th[s["xN"]] = x_ref_N
+        M = self._M_nd
+        if d is not None:
+            d_arr = np.asarray(d, dtype=float)
+            if d_arr.shape == (self.n,):
+                th[s["d"]] = d_arr
+                if self._d_dirty == 2:
+                    th[s["D"]] = 0.0
+                self._d_dirty = 1
+            elif d_arr.shape == (self.Np, self.n):
+                th[s["D"]] = d_arr.ravel()
+                if self._d_dirty == 1:
+                    th[s["d"]] = 0.0
+                self._d_dirty = 2
+                M = self._M_full
+            else:
+                raise ValueError(
+                    f"solve(): d must have shape ({self.n},) or ({self.Np}, {self.n}), "
+                    f"got {d_arr.shape}"
+                )
+        elif self._d_dirty:
+            th[s["d"]] = 0.0
+            th[s["D"]] = 0.0
+            self._d_dirty = 0
+        if "ur" in s:
+            if u_ref is not None:
+                try:
+                    th[s["ur"]].reshape(self.Np, self.m)[...] = u_ref
+                except ValueError as exc:
+                    raise ValueError(
+                        f"solve(): u_ref must have shape ({self.Np}, {self.m}) or ({self.m},)"
+                    ) from exc
+                self._ur_dirty = True
+            elif self._ur_dirty:
+                th[s["ur"]] = 0.0
+                self._ur_dirty = False
+
+        v = self._v
+        tv = th[: self._nb] if M is self._M_nd else th
+        np.dot(M, tv, out=v)
+        up = th[s["up"]]
+        if not math.isfinite(np.dot(tv, tv)):  # NaN/inf anywhere in the data
+            return self._fallback(t_start, "invalid input", _STATUS_INVALID_INPUT, up)
+        upl = up.tolist()
+
+        # bounds -------------------------------------------------------------------
+        override = y_min is not None or y_max is not None or h_y is not None or h_x is not None
+        relax = False
+        if self._has_du:
+            umin_l, umax_l = self._umin_l, self._umax_l
+            for i in range(self.m):
+                if upl[i] < umin_l[i] or upl[i] > umax_l[i]:
+                    relax = True
+                    break
+        if override or relax:
+            ok = self._set_bounds(up, relax, y_min, y_max, h_y, h_x)
+            if not ok:
+                return self._fallback(t_start, "invalid input", _STATUS_INVALID_INPUT, up)
+        elif self._bounds_dirty:
+            self._Lb[:] = self._Lb0
+            self._Ub[:] = self._Ub0
+            self._bounds_dirty = False
+        c = v[self._sl_c]
+        nlu = self._nlu
+        np.subtract(self._Lb, c, out=self._l[:nlu])
+        np.subtract(self._Ub, c, out=self._u[:nlu])
+
+        # OSQP -----------------------------------------------------------------------
+        be = self._backend
+        try:
+            rc = be.update_vec(v[self._sl_q], self._l, self._u)
+            if rc:
+                return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
+            if self._ws_x is not None:
+                be.warm_start(self._ws_x, self._ws_y)
+            x, y, stats = be.solve()
+            status_val, status, iters, solve_time, obj_val, _ = stats
+            if status_val != _SOLVED:
+                x, y, stats = self._rescue(x, y, stats)
+                status_val, status, iters, solve_time, obj_val, _ = stats
+        except Exception:  # noqa: BLE001 - the control loop must never raise here
+            return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
+        if status_val != _SOLVED and status_val != _SOLVED_INACCURATE:
+            return self._fallback(t_start, status, status_val, up, iters, solve_time)
+        if not math.isfinite(np.dot(x, x)):
+            return self._fallback(t_start, status, status_val, up, iters, solve_time)
+
+        # result ---------------------------------------------------------------------
+        nz = self._nz
+        z = x[:nz]
+        traj = np.dot(self._Wz, z)
+        traj += v[self._sl_traj]
+        nc_m, npn = self._ncm, self._npn
+        U = traj[:nc_m].reshape(self.Nc, self.m)
+        X = traj[nc_m : nc_m + npn].reshape(self.Np, self.n)
+        Y = X if self._y_is_x else traj[nc_m + npn :].reshape(self.Np, self.p)
+        u0 = U[0]
+        # remove the solver's O(eps) constraint violation: u0 exactly inside both boxes
+        self._clip_to_window(u0, upl)
+        Lv = v[self._sl_L]
+        cost = obj_val + float(np.dot(Lv, Lv))
+        slack_max = max(0.0, float(np.maximum.reduce(x[nz:]))) if self._ns else 0.0
+
+        # warm start for the next call: shifted primal and dual
+        if self._ws_mode == "shift":
+            xb = self._xbuf
+            xb[: self._nv] = x
+            self._ws_x = xb[self._xshift]
+            self._ws_y = y[self._yshift]
+        elif self._ws_mode == "previous":
+            self._ws_x, self._ws_y = x, y
+        self._plan = U
+        self._plan_age = 0
+        self._u_last = u0
+        return MPCSolution(
+            u0=u0,
+            du0=u0 - up,
+            U=U,
+            X=X,
+            Y=Y,
+            status=status,
+            status_val=status_val,
+            iterations=iters,
+            solve_time_s=solve_time,
+            overhead_s=time.perf_counter() - t_start - solve_time,
+            slack_max=slack_max,
+            fallback=False,
+            cost=cost,
+        )
+
+    # ------------------------------------------------------------------ helpers
+    def _set_bounds(
+        self,
+        up: np.ndarray,
+        relax: bool,
+        y_min: ArrayLike | None,
+        y_max: ArrayLike | None,
+        h_y: ArrayLike | None,
+        h_x: ArrayLike | None,
+    ) -> bool:
+        """Write per-call bounds into the working bound vectors; False if they contain NaN."""
+        Lb, Ub = self._Lb, self._Ub
+        Lb[:] = self._Lb0
+        Ub[:] = self._Ub0
+        self._bounds_dirty = True
+        if relax:
+            # reachable input bounds when u_prev lies outside [u_min, u_max]
+            nu = self._nz
+            with np.errstate(invalid="ignore"):
+                lo = np.minimum(self._umin_t, up[None, :] + self._k_dumax)
+                hi = np.maximum(self._umax_t, up[None, :] + self._k_dumin)
+            Lb[:nu] = np.clip(np.nan_to_num(lo, nan=-_BIG), -_BIG, _BIG).ravel()
+            Ub[:nu] = np.clip(np.nan_to_num(hi, nan=_BIG), -_BIG, _BIG).ravel()
+        for name, val, side in (
+            ("y", y_min, "lo"),
+            ("y", y_max, "hi"),
+            ("H_y", h_y, "hi"),
+            ("H_x", h_x, "hi"),
+        ):
+            if val is None:
+                continue
+            label = {"lo": "y_min", "hi": "y_max"}[side] if name == "y" else "h" + name[1:]
+            g = next((g for g in self._groups if g.name == name), None)
+            dim = _group_dim_name(name, self.n, self.p)
+            arr = np.asarray(val, dtype=float)
+            try:
+                arr = np.broadcast_to(arr, (self.Np, dim))
+            except ValueError:
+                raise ValueError(
+                    f"solve(): {label} must have shape ({self.Np}, {dim}) or ({dim},), "
+                    f"got {arr.shape}"
+                ) from None
+            if np.isnan(arr).any():
+                return False
+            if g is None:
+                if np.isfinite(arr).any():
+                    raise ValueError(
+                        f"solve(): {label} given but no {name} constraint was set at construction"
+                    )
+                continue
+            dropped = np.setdiff1d(np.arange(dim), g.cols)
+            if dropped.size and np.isfinite(arr[:, dropped]).any():
+                raise ValueError(
+                    f"solve(): {label} has finite values in rows {dropped.tolist()} that were "
+                    "unconstrained at construction"
+                )
+            vals = np.clip(arr[:, g.cols], -_BIG, _BIG)
+            if side == "lo":
+                pos = g.lb_pos
+                ok = pos >= 0
+                Lb[pos[ok]] = vals[ok]
+            else:
+                pos = g.ub_pos
+                Ub[pos] = vals
+        # hard rows must have l <= u for OSQP
+        nh = self._nh
+        return bool(np.all(Lb[:nh] <= Ub[:nh]))
+
+    def _fallback(
+        self,
+        t_start: float,
+        status: str,
+        status_val: int,
+        up: np.ndarray,
+        iters: int = 0,
+        solve_time: float = 0.0,
+    ) -> MPCSolution:
+        """Safe command: shifted previous plan (or held input), clipped to all input bounds."""
+        m, Nc = self.m, self.Nc
+        up = np.array(up, dtype=float)
+        if not np.all(np.isfinite(up)):
+            up = (
+                self._u_last.copy()
+                if self._u_last is not None and np.all(np.isfinite(self._u_last))
+                else np.where(np.isfinite(up), up, 0.0)
+            )
+            rate_ok = False
+        else:
+            rate_ok = True
+        self._plan_age += 1
+        if self._plan is not None:
+            idx = np.minimum(np.arange(Nc) + self._plan_age, Nc - 1)
+            cand = self._plan[idx]
+        else:
+            cand = np.tile(up, (Nc, 1))
+        U = np.empty((Nc, m))
+        prev = up
+        for i in range(Nc):
+            lo, hi = self._umin, self._umax
+            if rate_ok or i > 0:
+                lo, hi = self._input_window(prev)
+            ui = np.clip(cand[i], lo, hi)
+            ui = np.where(np.isfinite(ui), ui, np.clip(0.0, lo, hi))
+            U[i] = ui
+            prev = ui
+        u0 = U[0].copy()
+        # prediction with the fallback plan (NaN if the data were not finite)
+        v = self._v
+        if self.delta_u:
+            z = np.diff(np.vstack([up[None, :], U]), axis=0).ravel()
+        else:
+            z = U.ravel()
+        traj = self._Wz @ z + v[self._sl_traj]
+        nc_m, npn = Nc * m, self.Np * self.n
+        X = traj[nc_m : nc_m + npn].reshape(self.Np, self.n)
+        Y = X if self._y_is_x else traj[nc_m + npn :].reshape(self.Np, self.p)
+        # next warm start: shift the previous one again (never reuse a failed iterate)
+        if self._ws_x is not None:
+            xb = self._xbuf
+            xb[: self._nv] = self._ws_x
+            self._ws_x = xb[self._xshift]
+            self._ws_y = self._ws_y[self._yshift]
+        self._u_last = u0
+        slack_max, cost = self._plan_violation_cost(z)
+        return MPCSolution(
+            u0=u0,
+            du0=u0 - up,
+            U=U,
+            X=X,
+            Y=Y,
+            status=status,
+            status_val=status_val,
+            iterations=iters,
+            solve_time_s=solve_time,
+            overhead_s=time.perf_counter() - t_start - solve_time,
+            slack_max=slack_max,
+            fallback=True,
+            cost=cost,
+        )
+
+    def _clip_to_window(self, u0: np.ndarray, upl: list[float]) -> None:
+        """In-place clip of ``u0`` to :meth:`_input_window` (python floats: m is small)."""
+        umin, umax, dmin, dmax = self._umin_l, self._umax_l, self._dumin_l, self._dumax_l
+        u0l = u0.tolist()
+        for i in range(self.m):
+            a = upl[i]
+            rlo = a + dmin[i]
+            rhi = a + dmax[i]
+            lo = umin[i] if umin[i] > rlo else rlo
+            if lo > rhi:
+                lo = rhi
+            hi = umax[i] if umax[i] < rhi else rhi
+            if hi < rlo:
+                hi = rlo
+            val = u0l[i]
+            if val < lo:
+                u0[i] = lo
+            elif val > hi:
+                u0[i] = hi
+
+    def _rescue(self, x: np.ndarray, y: np.ndarray, stats: _Stats) -> tuple[Any, Any, _Stats]:
+        """Recover from a solve that did not meet the tolerances.
+
+        ADMM usually identifies the active set long before it meets tight
+        tolerances; this is typical when soft constraints are violated, because
+        their multipliers then sit at the large penalty ``rho`` and the QP behaves
+        like a degenerate LP.  Cascade:
+
+        1. OSQP continued from the last iterate with a relaxed tolerance
+           (``max(1e-4, 10 eps)``) and OSQP's own solution polishing;
+        2. if polishing failed: an exact active-set iteration (:meth:`_refine`).
+
+        A verified KKT point is reported as ``"solved (polished)"`` (status 1); an
+        unpolished relaxed-tolerance solution as ``"solved inaccurate"`` (status 2).
+        """
+        status_val, status, iters, solve_time = stats[0], stats[1], stats[2], stats[3]
+        if status_val not in _RESCUE or x is None or not math.isfinite(np.dot(x, x)):
+            return x, y, stats
+        t0 = time.perf_counter()
+        st = self.osqp_settings
+        eps = max(1e-4, 10.0 * float(st["eps_abs"]), 10.0 * float(st["eps_rel"]))
+        restore = {k: st[k] for k in ("eps_abs", "eps_rel", "polishing")}
+        x2, y2, s2 = self._backend.rescue(x, y, eps, True, restore)
+        it = iters + s2[2]
+        if s2[0] == _SOLVED and s2[5] == 1:
+            t = solve_time + time.perf_counter() - t0
+            return x2, y2, (_SOLVED, "solved (polished)", it, t, s2[4], 1)
+        ok2 = x2 is not None and math.isfinite(np.dot(x2, x2))
+        ref = self._refine(x2, y2) if ok2 else self._refine(x, y)
+        t = solve_time + time.perf_counter() - t0
+        if ref is not None:
+            return ref[0], ref[1], (_SOLVED, "solved (polished)", it, t, ref[2], 1)
+        if ok2 and s2[0] == _SOLVED:
+            return x2, y2, (_SOLVED_INACCURATE, "solved inaccurate", it, t, s2[4], s2[5])
+        return x, y, (status_val, status, it, t, stats[4], stats[5])
+
+    def _refine(
+        self, x: np.ndarray, y: np.ndarray, max_iter: int = 20
+    ) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """Exact solution by a primal-dual active-set iteration started from ``(x, y)``.
+
+        Slacks are eliminated: each soft constraint ``k`` (row ``g_k``, bounds
+        ``L_k <= g_k z <= U_k``) is *free* (``eps_k = 0``, bounds inactive), *bound*
+        (``eps_k = 0``, ``g_k z`` on a bound, multiplier in ``[0, rho_k]``) or
+        *violated* (``eps_k = g_k z - U_k > 0`` or ``L_k - g_k z > 0``, whose penalty
+        ``rho_k eps_k + gamma eps_k^2`` enters the cost).  Each iteration solves the
+        equality-constrained QP in ``z`` of the current active set (dense KKT
+        system) and updates the set with the complementarity rules of the
+        primal-dual active-set method (semismooth Newton); the result is accepted
+        only if every KKT condition of the full QP holds.  Returns ``(w, y, obj)``
+        in OSQP's variables or ``None``.
+        """
+        nz, nh, ns, nlu = self._nz, self._nh, self._ns, self._nlu
+        Ad = self._A_dense
+        lb, ub = self._l, self._u
+        Gh = Ad[:nh, :nz]
+        lo_h, hi_h = lb[:nh], ub[:nh]
+        Gs = Ad[nh : nh + ns, :nz]
+        jl = self._soft2_slack
+        U_s = ub[nh : nh + ns]
+        L_s = np.full(ns, -_BIG)
+        L_s[jl] = lb[nh + ns : nlu]
+        rho = self._rho_s
+        g2 = 2.0 * self._gamma_s
+        H2 = 2.0 * self._H
+        q = self._v[:nz]
+        eq_h = (hi_h - lo_h) <= 1e-12 * (1.0 + np.abs(hi_h))
+
+        # initial active set from the ADMM iterate (OSQP's polishing rule)
+        z = x[:nz]
+        ah = Gh @ z
+        yh = y[:nh]
+        st_h = np.where((hi_h - ah) < yh, 1, np.where((ah - lo_h) < -yh, -1, 0))
+        st_h[eq_h] = 1
+        st_s = np.zeros(ns, dtype=np.int64)
+        if ns:
+            eps = x[nz:]
+            ysu = y[nh : nh + ns]
+            ysl = np.zeros(ns)
+            ysl[jl] = y[nh + ns : nlu]
+            gs = Gs @ z
+            zero = eps < -y[nlu:]
+            st_s = np.where(ysu >= -ysl, 1, -1)
+            st_s = np.where(
+                zero, np.where(ysu >= -ysl, (U_s - gs) < ysu, (gs - L_s) < -ysl) * st_s, 2 * st_s
+            )
+        for _ in range(max_iter):
+            # ---- KKT system of the current active set -----------------------------
+            Hr = H2
+            f = q
+            vu, vl = st_s == 2, st_s == -2
+            if vu.any() or vl.any():
+                Gv = Gs[vu | vl]
+                Hr = H2 + (Gv.T * g2[vu | vl]) @ Gv
+                coef = np.where(st_s == 2, rho - g2 * U_s, -rho - g2 * L_s)[vu | vl]
+                f = q + Gv.T @ coef
+            ah_idx = np.flatnonzero(st_h != 0)
+            bs_idx = np.flatnonzero(np.abs(st_s) == 1)
+            E = np.vstack([Gh[ah_idx], Gs[bs_idx]])
+            e = np.concatenate(
+                [
+                    np.where(st_h[ah_idx] > 0, hi_h[ah_idx], lo_h[ah_idx]),
+                    np.where(st_s[bs_idx] > 0, U_s[bs_idx], L_s[bs_idx]),
+                ]
+            )
+            ne = e.size
+            K = np.zeros((nz + ne, nz + ne))
+            K[:nz, :nz] = Hr
+            K[:nz, nz:] = E.T
+            K[nz:, :nz] = E
+            rhs = np.concatenate([-f, e])
+            try:
+                sol = np.linalg.solve(K, rhs)
+            except np.linalg.LinAlgError:
+                sol = np.linalg.lstsq(K, rhs, rcond=None)[0]
+            if not np.all(np.isfinite(sol)):
+                return None
+            z = sol[:nz]
+            lam_h = np.zeros(nh)
+            lam_h[ah_idx] = sol[nz : nz + ah_idx.size]
+            ah = Gh @ z
+            gs = Gs @ z
+            v_u = gs - U_s
+            v_l = L_s - gs
+            mu = np.zeros(ns)  # signed multiplier of soft constraint k (upper > 0)
+            mu[bs_idx] = sol[nz + ah_idx.size :]
+            mu = np.where(st_s == 2, rho + g2 * v_u, np.where(st_s == -2, -(rho + g2 * v_l), mu))
+            # ---- complementarity update (c = 1) -----------------------------------
+            new_h = np.where(lam_h + (ah - hi_h) > 0, 1, np.where(lam_h + (ah - lo_h) < 0, -1, 0))
+            new_h[eq_h] = 1
+            t_u = np.maximum(mu, 0.0) + v_u
+            t_l = np.maximum(-mu, 0.0) + v_l
+            new_s = np.where(
+                t_u >= t_l,
+                np.where(t_u > rho, 2, np.where(t_u > 0, 1, 0)),
+                np.where(t_l > rho, -2, np.where(t_l > 0, -1, 0)),
+            )
+            if np.array_equal(new_h, st_h) and np.array_equal(new_s, st_s):
+                break
+            st_h, st_s = new_h, new_s
+        else:
+            return None
+
+        # ---- verify the KKT conditions of the full QP ---------------------------------
+        scale = 1.0 + float(np.max(np.abs(rhs), initial=0.0))
+        if np.max(np.abs(K @ sol - rhs), initial=0.0) > 1e-8 * scale:
+            return None  # inconsistent (singular) active set
+        tol_p = 1e-9 * (
+            1.0 + float(np.max(np.abs(e), initial=0.0)) + float(np.abs(ah).max(initial=0))
+        )
+        tol_d = 1e-9 * (
+            1.0 + float(np.max(np.abs(sol[nz:]), initial=0.0)) + float(rho.max(initial=0))
+        )
+        if np.any(ah > hi_h + tol_p) or np.any(ah < lo_h - tol_p):
+            return None
+        act = (st_h != 0) & ~eq_h
+        if np.any(lam_h[act] * st_h[act] < -tol_d):
+            return None
+        if ns:
+            free = st_s == 0
+            if np.any(v_u[free] > tol_p) or np.any(v_l[free] > tol_p):
+                return None
+            bound = np.abs(st_s) == 1
+            if np.any(mu[bound] * st_s[bound] < -tol_d) or np.any(
+                np.abs(mu[bound]) > rho[bound] + tol_d
+            ):
+                return None
+            if np.any(v_u[st_s == 2] < -tol_p) or np.any(v_l[st_s == -2] < -tol_p):
+                return None
+        eps_r = np.where(st_s == 2, v_u, np.where(st_s == -2, v_l, 0.0)).clip(min=0.0)
+        w = np.concatenate([z, eps_r])
+        # OSQP-convention duals, useful as the next warm start
+        yw = np.zeros(self._nA)
+        yw[:nh] = lam_h
+        if ns:
+            yw[nh : nh + ns] = np.maximum(mu, 0.0)
+            yw[nh + ns : nlu] = np.minimum(mu, 0.0)[jl]
+            yw[nlu:] = -rho - g2 * eps_r + np.maximum(mu, 0.0) - np.minimum(mu, 0.0)
+        obj = float(z @ self._H @ z + q @ z + rho @ eps_r + self._gamma_s @ eps_r**2)
+        return w, yw, obj
+
+    def _input_window(self, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Inputs reachable from ``up`` in one step: box intersected with the rate window.
+
+        If the box cannot be reached in one step (``up`` far outside it) the rate
+        limit wins and the window is the rate-limited point closest to the box.
+        """
+        r_lo = up + self._dumin
+        r_hi = up + self._dumax
+        lo = np.minimum(np.maximum(self._umin, r_lo), r_hi)
+        hi = np.maximum(np.minimum(self._umax, r_hi), r_lo)
+        return lo, hi
+
+    def _plan_violation_cost(self, z: np.ndarray) -> tuple[float, float]:
+        """Soft-constraint violation and cost of a plan ``z`` (NaN if the data were not finite)."""
+        v = self._v
+        nz, nh, ns, nlu = self._nz, self._nh, self._ns, self._nlu
+        with np.errstate(invalid="ignore", over="ignore"):
+            g = self._A_dense[:nlu, :nz] @ z + v[self._sl_c]
+            eps = np.zeros(ns)
+            if ns:
+                eps = np.maximum(eps, g[nh : nh + ns] - self._Ub[nh : nh + ns])
+                j = np.searchsorted(self._soft_c, self._soft2_c)
+                np.maximum.at(eps, j, self._Lb[nh + ns : nlu] - g[nh + ns : nlu])
+            rho = self._rho_s
+            Lv = v[self._sl_L]
+            cost = float(
+                z @ self._H @ z + v[:nz] @ z + Lv @ Lv + rho @ eps + self._gamma_s @ eps**2
+            )
+            slack_max = float(eps.max()) if ns else 0.0
+        if not math.isfinite(cost):
+            cost = float("nan")
+        return slack_max, cost
+
+    # ------------------------------------------------------------------ info
+    @property
+    def n_variables(self) -> int:
+        """Number of QP decision variables (inputs/increments + slacks)."""
+        return self._nv
+
+    @property
+    def n_constraints(self) -> int:
+        """Number of QP constraint rows."""
+        return self._nA
+
+
+def _group_dim_name(name: str, n: int, p: int) -> int:
+    return p if name in ("y", "H_y") else n
+
+
+def _check_penalty_arg(soft_penalty: Any) -> None:
+    if isinstance(soft_penalty, Mapping):
+        return
+    if np.ndim(soft_penalty) != 0:
+        raise ValueError(
+            "soft_penalty must be a scalar or a mapping {group: scalar or per-row vector}"
+        )
+    _vector("soft_penalty", soft_penalty, 1, allow_inf=True)
