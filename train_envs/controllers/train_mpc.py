@@ -359,8 +359,8 @@ class MultiCarMPC(_TrainMPCBase):
 
     name = "sempc"
     PARAMS = (
-        TunableParam("q_s", 1e-4, 1e2, 0.1, log=True, description="lead position weight [1/m^2]"),
-        TunableParam("q_v", 1e-2, 1e4, 20.0, log=True, description="lead speed weight [s^2/m^2]"),
+        TunableParam("q_s", 1e-4, 1e2, 2.0, log=True, description="lead position weight [1/m^2]"),
+        TunableParam("q_v", 1e-2, 1e4, 100.0, log=True, description="lead speed weight [s^2/m^2]"),
         TunableParam("q_dx", 1e0, 1e8, 1e4, log=True, description="coupler deformation weight"),
         TunableParam("q_dv", 1e-2, 1e6, 1e2, log=True, description="relative speed weight"),
         TunableParam(
