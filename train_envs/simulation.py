@@ -23,7 +23,18 @@ from train_envs.metrics import episode_metrics
 from train_envs.scenarios import Scenario, build_plant
 
 #: controller info keys copied into the DataFrame when present (numeric only)
-INFO_COLUMNS = ("solve_time_s", "iterations", "slack_max", "fallback", "status_val", "triggered")
+INFO_COLUMNS = (
+    "solve_time_s",
+    "iterations",
+    "slack_max",
+    "fallback",
+    "status_val",
+    "triggered",
+    "alpha",
+    "h_c",
+    "J",
+    "w_hat",
+)
 
 
 @dataclass

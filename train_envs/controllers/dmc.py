@@ -47,9 +47,9 @@ integrating every past move for ever, i.e. it forgets the −κ v of the model; 
 cruise that is κ v M(1+ρ) ≈ 12 kN of phantom traction, a persistent one-step
 prediction error (−0.011 m/s on average over the run) that the step-type correction
 below cannot remove (it never changes the predicted slope). Measured on
-``paper004_urban`` without the position catch-up of 2.: E_v 0.051 m/s and a −9.9 m
+``paper004_urban`` without the position catch-up of 2.: E_v 0.050 m/s and a −9.8 m
 stopping error with ρ = 1, against 0.011 m/s and −1.5 m with the model's ρ (with the
-catch-up the position loop hides most of it: stop −0.47 m against −0.015 m).
+catch-up the position loop hides most of it: stop −0.36 m against +0.001 m).
 
 Predictions (Xi 2013, ch. 2)::
 
@@ -195,8 +195,8 @@ gradient force and the *non-linear part* of the Davis resistance,
 ``u_ff = R̂(v) − R'(v_nom) v + M g θ(s + v (τ + T_d))/1000`` — the linear part of R is
 in the model, so the nominal plant seen by the DMC is exactly the linear model of 1.
 The gradient is read τ + T_d ahead (``feedforward_lead``), so that its force arrives
-through the actuator lag when the train reaches the gradient change (E_v 0.0208 →
-0.0178 m/s, ITAE 154 → 86 m s on ``paper004_urban``). Without feedforward the DMC has to
+through the actuator lag when the train reaches the gradient change (E_v 0.0203 →
+0.0178 m/s, ITAE 146 → 88 m s on ``paper004_urban``). Without feedforward the DMC has to
 absorb the gradient and resistance through the correction alone — on an integrating
 process a constant load is exactly what the step-type correction cannot remove
 (Lundström et al. 1995). The command then passes the comfort jerk limit
@@ -216,12 +216,12 @@ half of their samples would fail: ``alpha_order="clip"`` accepts them and uses
 
 Defaults (tunables: α_max 0.4, α_min 0.1, γ 2, k_e 30 s/m — |e| ≥ 0.1 m/s is "big" —,
 h_0 0.8, k_ec 30 s²/m, k_h 0.05, so h_c ∈ [0.65, 0.95]) were picked on
-``paper004_urban``: stop error −0.015 m, time error 0.2 s, E_v 0.0178 m/s, ITAE 86 m s
+``paper004_urban``: stop error +0.001 m, time error 0.2 s, E_v 0.0178 m/s, ITAE 88 m s
 (Fuzzy-PID: −0.75 m, 0.0253 m/s, 357 m s; AFSMC: +0.064 m, 0.0325 m/s, 453 m s). On that
 nominal run the DMC's model is exact up to the feedforward's lag, so the prediction
 error is tiny and the online adjustments, though active, change the metrics little
-(fixed α = 0.1 and h_c = 0.8: E_v 0.0176 m/s, ITAE 78 m s; fixed α = 0.7: stop
-+1.35 m, E_v 0.0243 m/s); they matter more under model error (mass, Davis, wind),
+(fixed α = 0.1 and h_c = 0.8: E_v 0.0175 m/s, ITAE 78 m s; fixed α = 0.7: stop
++1.67 m, E_v 0.0274 m/s); they matter more under model error (mass, Davis, wind),
 where e_c is not small. ``reference_form="error"`` gives E_v 0.0175 m/s, ITAE 77 m s.
 """
 

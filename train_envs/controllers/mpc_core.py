@@ -581,6 +581,9 @@ class LinearMPC:
         warm_start: ``"shift"`` (default): start OSQP from the previous primal/dual
             solution shifted by one stage; ``"previous"``: from the previous
             solution as is; ``"none"``: let OSQP start from its last iterate.
+        rescue: on a non-converged solve, try the relaxed/polished second attempt
+            and the exact active-set refinement before falling back (default True;
+            see :meth:`_rescue`).
     """
 
     def __init__(
@@ -616,6 +619,7 @@ class LinearMPC:
         osqp_settings: Mapping[str, Any] | None = None,
         fast_osqp: bool = True,
         warm_start: str = "shift",
+        rescue: bool = True,
     ) -> None:
         # ---- model ---------------------------------------------------------
         A_, B_, C_ = self._check_model(A, B, C, None)
@@ -661,6 +665,7 @@ class LinearMPC:
                 f"warm_start must be 'shift', 'previous' or 'none', got {warm_start!r}"
             )
         self._ws_mode = warm_start
+        self._rescue_on = bool(rescue)
 
         # ---- output / state constraints --------------------------------------
         self._groups = self._make_groups(
@@ -694,6 +699,10 @@ class LinearMPC:
         n = A_.shape[0]
         if A_.shape != (n, n):
             raise ValueError(f"A must be square, got shape {A_.shape}")
+        if dims is not None and n != dims[0]:
+            raise ValueError(
+                f"set_model must keep the dimensions (n, m, p) = {dims}, got A {A_.shape}"
+            )
         B_ = _matrix("B", B, column=True)
         if B_.shape[0] != n:
             raise ValueError(f"B must have shape ({n}, m) to match A, got {B_.shape}")
@@ -879,8 +888,9 @@ class LinearMPC:
         Ub = np.empty(self._nlu)
         Lb[:n_u] = np.tile(self._umin, Nc)
         Ub[:n_u] = np.tile(self._umax, Nc)
-        Lb[n_u : n_u + n_du] = np.tile(self._dumin, Nc)
-        Ub[n_u : n_u + n_du] = np.tile(self._dumax, Nc)
+        if n_du:
+            Lb[n_u : n_u + n_du] = np.tile(self._dumin, Nc)
+            Ub[n_u : n_u + n_du] = np.tile(self._dumax, Nc)
         o = n_u + n_du
         Lb[o:nh] = clo[hard_c]
         Ub[o:nh] = chi[hard_c]
@@ -933,7 +943,8 @@ class LinearMPC:
             Dz = np.eye(nz) - np.eye(nz, k=-m)
         Amask = np.zeros((self._nA, self._nv), dtype=bool)
         Amask[:n_u, :nz] = Tz_c != 0
-        Amask[n_u : n_u + n_du, :nz] = Dz != 0
+        if n_du:
+            Amask[n_u : n_u + n_du, :nz] = Dz != 0
         Amask[o:nh, :nz] = cmask[hard_c]
         Amask[nh : nh + ns, :nz] = cmask[soft_c]
         Amask[nh + ns : self._nlu, :nz] = cmask[soft2_c]
@@ -1088,7 +1099,8 @@ class LinearMPC:
         # OSQP A (dense image of the fixed pattern)
         Ad = np.zeros((self._nA, self._nv))
         Ad[:n_u, :nz] = self._Tz_c
-        Ad[n_u:o, :nz] = self._Dz
+        if n_du:
+            Ad[n_u:o, :nz] = self._Dz
         Ad[o:nh, :nz] = Gz[self._hard_c]
         Ad[nh : nh + ns, :nz] = Gz[self._soft_c]
         Ad[nh + ns : nlu, :nz] = Gz[self._soft2_c]
@@ -1109,7 +1121,8 @@ class LinearMPC:
         # v = [q (nv) | constraint offsets (nlu) | U_c, X (, Y) offsets | cost factor]
         Cth = np.zeros((nlu, nt))
         Cth[:n_u] = Uth[:nz]
-        Cth[n_u:o] = dUth
+        if n_du:
+            Cth[n_u:o] = dUth
         Cth[o:nh] = Gth[self._hard_c]
         Cth[nh : nh + ns] = Gth[self._soft_c]
         Cth[nh + ns :] = Gth[self._soft2_c]
@@ -1350,10 +1363,11 @@ class LinearMPC:
 
         v = self._v
         tv = th[: self._nb] if M is self._M_nd else th
-        np.dot(M, tv, out=v)
         up = th[s["up"]]
         if not math.isfinite(np.dot(tv, tv)):  # NaN/inf anywhere in the data
+            v.fill(np.nan)
             return self._fallback(t_start, "invalid input", _STATUS_INVALID_INPUT, up)
+        np.dot(M, tv, out=v)
         upl = up.tolist()
 
         # bounds -------------------------------------------------------------------
@@ -1388,7 +1402,7 @@ class LinearMPC:
                 be.warm_start(self._ws_x, self._ws_y)
             x, y, stats = be.solve()
             status_val, status, iters, solve_time, obj_val, _ = stats
-            if status_val != _SOLVED:
+            if status_val != _SOLVED and self._rescue_on:
                 x, y, stats = self._rescue(x, y, stats)
                 status_val, status, iters, solve_time, obj_val, _ = stats
         except Exception:  # noqa: BLE001 - the control loop must never raise here
@@ -1833,6 +1847,11 @@ def _group_dim_name(name: str, n: int, p: int) -> int:
 
 def _check_penalty_arg(soft_penalty: Any) -> None:
     if isinstance(soft_penalty, Mapping):
+        unknown = set(soft_penalty) - set(_SOFT_GROUPS)
+        if unknown:
+            raise ValueError(
+                f"soft_penalty keys must be among {_SOFT_GROUPS}, got {sorted(unknown)}"
+            )
         return
     if np.ndim(soft_penalty) != 0:
         raise ValueError(

@@ -92,9 +92,15 @@ class _TrainMPCBase(Controller):
         }
 
     def _on_params_changed(self) -> None:
+        # rebuild the QP only for a real change: an env maps its action back onto the
+        # parameters with rounding (1e-16 relative), which must not cost a rebuild
         if getattr(self, "_mpc", None) is not None:
             key = tuple(sorted(self._params.items()))
-            if key != self._weights_key:
+            old = self._weights_key
+            if old is None or any(
+                not math.isclose(a[1], b[1], rel_tol=1e-12, abs_tol=0.0)
+                for a, b in zip(key, old, strict=True)
+            ):
                 self._apply_weights()
 
 

@@ -42,7 +42,13 @@ ENV_SPECS: dict[str, tuple[dict[str, Any], str]] = {
         "paper 003 cruise, 8-car train with actuator dynamics, fuzzy predictive control",
     ),
     "TrainEnvs/Urban004-v0": (
-        {"scenario": "paper004_urban", "controller": "dmc"},
+        # the env samples the seven parameters independently: alpha_min > alpha_max is
+        # accepted and the smaller one used as the lower bound
+        {
+            "scenario": "paper004_urban",
+            "controller": "dmc",
+            "controller_params": {"alpha_order": "clip"},
+        },
         "paper 004 urban run 2940 m in 195 s, DMC with online softening/correction",
     ),
     "TrainEnvs/Urban004FuzzyPID-v0": (

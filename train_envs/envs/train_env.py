@@ -286,9 +286,8 @@ class TrainTuningEnv(gym.Env):
         self._v_scale = max(float(np.max(sc.track.speed_limits_mps)), 1.0)
         if math.isfinite(sc.train.max_speed_mps):
             self._v_scale = min(self._v_scale, sc.train.max_speed_mps) or self._v_scale
-        self._unit = np.array(
-            [p.to_unit(self._base_params[p.name]) for p in self.param_specs], dtype=float
-        )
+        self._base_unit = [p.to_unit(self._base_params[p.name]) for p in self.param_specs]
+        self._unit = np.array(self._base_unit, dtype=float)
         self._prev_action = self._unit.copy()
         self._u_before = float(np.sum(self.loop.u_prev))
         self._a_prev = self.loop.plant.accel
@@ -314,8 +313,14 @@ class TrainTuningEnv(gym.Env):
             unit = np.clip(self._unit + float(self.config["delta_scale"]) * a, -1.0, 1.0)
         self._unit = unit
         self._prev_action = a
+        # the unit value of a base parameter maps back onto it exactly (from_unit and
+        # to_unit are inverse only up to rounding)
+        base = self._base_unit
         self.controller.set_params(
-            **{p.name: p.from_unit(u) for p, u in zip(self.param_specs, unit, strict=True)}
+            **{
+                p.name: self._base_params[p.name] if u == base[i] else p.from_unit(u)
+                for i, (p, u) in enumerate(zip(self.param_specs, unit, strict=True))
+            }
         )
         return clipped
 
