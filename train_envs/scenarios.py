@@ -31,7 +31,7 @@ from train_envs.lines import (
     time_supplemented_profile,
 )
 from train_envs.lines.profiles import paper003_speed_command
-from train_envs.plants.lookup import PiecewiseLinear
+from train_envs.plants.lookup import PiecewiseLinear, gradient_table
 from train_envs.plants.multi_car import ActuatorParams, TrainPlant
 from train_envs.plants.resistance import (
     BoundedRandomDisturbance,
@@ -176,17 +176,9 @@ class Scenario:
         return replace(self, **kw)
 
 
-_LOOKUPS: dict[int, PiecewiseLinear] = {}
-
-
 def gradient_lookup(track: Track) -> PiecewiseLinear:
     """Cached fast look-up table of the track's equivalent gradient [‰]."""
-    key = id(track)
-    if key not in _LOOKUPS:
-        _LOOKUPS[key] = PiecewiseLinear.from_function(
-            track.equivalent_gradient_permil_at, track.breakpoints_m(), track.length_m + 1e6
-        )
-    return _LOOKUPS[key]
+    return gradient_table(track)
 
 
 def build_plant(sc: Scenario, rng: np.random.Generator) -> TrainPlant:

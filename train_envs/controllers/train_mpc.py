@@ -46,6 +46,7 @@ from scipy.linalg import expm, solve_discrete_are
 from train_envs.controllers._common import distribute, input_shares
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.mpc_core import LinearMPC
+from train_envs.plants.lookup import gradient_table
 from train_envs.trains import G
 
 
@@ -264,7 +265,7 @@ class PointMassMPC(_TrainMPCBase):
             slope = tr.davis_b_Ns_per_m + 2.0 * tr.davis_c_Ns2_per_m2 * self._v_lin
             w -= (R - slope * vr) / self._mi
         if self.feedforward in ("full", "gradient") and self.ctx.track is not None:
-            theta = np.asarray(self.ctx.track.equivalent_gradient_permil_at(s_r), float)
+            theta = gradient_table(self.ctx.track)(s_r)
             w -= tr.mass_kg * G * theta / 1000.0 / self._mi
         return w
 
@@ -517,7 +518,7 @@ class MultiCarMPC(_TrainMPCBase):
             R = self._ca * (vr > 0) + self._cb * vr + self._cc * vr * vr
             w -= (R - self._slope * vr) / self._mi
         if self.feedforward in ("full", "gradient") and self.ctx.track is not None:
-            theta = np.asarray(self.ctx.track.equivalent_gradient_permil_at(s_r), float)[:, None]
+            theta = gradient_table(self.ctx.track)(s_r)[:, None]
             w -= self._m * G * theta / 1000.0 / self._mi
         del tr
         return w

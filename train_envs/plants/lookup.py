@@ -46,3 +46,18 @@ class PiecewiseLinear:
         s = np.asarray(s, dtype=float)
         i = self.x.searchsorted(s, side="right") - 1
         return self.y0[i] + self.slope[i] * (s - self.x[i])
+
+
+_TABLES: dict[int, tuple[object, PiecewiseLinear]] = {}
+
+
+def gradient_table(track) -> PiecewiseLinear:
+    """Cached look-up table of a track's equivalent gradient [‰] (gradient + curves)."""
+    key = id(track)
+    hit = _TABLES.get(key)
+    if hit is None or hit[0] is not track:
+        table = PiecewiseLinear.from_function(
+            track.equivalent_gradient_permil_at, track.breakpoints_m(), track.length_m + 1e6
+        )
+        _TABLES[key] = hit = (track, table)
+    return hit[1]

@@ -1,0 +1,57 @@
+"""MPC step cost on the papers' problems: wall time per step vs OSQP's own solve time.
+
+Run: ``python benchmarks/bench_train_mpc.py``. For paper 001's single-point problem
+(N = 10) and paper 000's 6-car problem (N = 3, 10, 20), one whole closed-loop scenario
+each; per control step we time the controller's ``compute`` (everything the MPC does:
+reference preview, affine terms, QP vector updates, OSQP, result) and read OSQP's own
+``solve_time`` from the same call. Reported: medians, their ratio, and the share of
+steps whose solve failed (fallback).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from train_envs.controllers.train_mpc import MultiCarMPC, PointMassMPC
+from train_envs.scenarios import get_scenario
+from train_envs.simulation import ClosedLoop
+
+
+def bench(scenario: str, ctrl) -> dict[str, float]:
+    sc = get_scenario(scenario)
+    loop = ClosedLoop(sc, ctrl)
+    loop.reset(seed=0)
+    walls, solves, fallbacks = [], [], 0
+    compute = ctrl.compute
+    while not loop.done:
+        obs = loop.observe()
+        t0 = time.perf_counter()
+        u, info = compute(obs)
+        walls.append(time.perf_counter() - t0)
+        solves.append(info["solve_time_s"])
+        fallbacks += bool(info["fallback"])
+        loop.step(u)
+    w, s = np.median(walls), np.median(solves)
+    return {"wall_us": 1e6 * w, "osqp_us": 1e6 * s, "ratio": w / s,
+            "steps": len(walls), "failed": fallbacks / len(walls)}
+
+
+def main() -> None:
+    cases = [
+        ("paper001_stopping", "single-point, N=10", PointMassMPC(Np=10)),
+        ("paper000_single_section", "6-car SEMPC, N=3", MultiCarMPC(Np=3)),
+        ("paper000_single_section", "6-car SEMPC, N=10", MultiCarMPC(Np=10)),
+        ("paper000_single_section", "6-car SEMPC, N=20", MultiCarMPC(Np=20)),
+    ]
+    print("| problem | steps | median wall/step [µs] | median OSQP solve [µs] | ratio | failed solves |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for scenario, label, ctrl in cases:
+        r = bench(scenario, ctrl)
+        print(f"| {label} | {r['steps']} | {r['wall_us']:.0f} | {r['osqp_us']:.0f} | "
+              f"{r['ratio']:.2f} | {100 * r['failed']:.2f} % |")
+
+
+if __name__ == "__main__":
+    main()
