@@ -195,10 +195,11 @@ def test_evaluate_same_seeds_same_table():
     assert {"stop_error_m", "E_v_mps", "return", "seed"} <= set(a.columns)
 
 
-def test_ppo_smoke():
+@pytest.mark.parametrize("env_id", [PID_ID, "TrainEnvs/Urban004-v0"])
+def test_ppo_smoke(env_id):
     from stable_baselines3 import PPO
 
-    env = gym.make(PID_ID)
+    env = gym.make(env_id)
     model = PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
     model.learn(total_timesteps=256)
     obs, _ = env.reset(seed=0)

@@ -56,6 +56,7 @@ from gymnasium import spaces
 
 from train_envs.controllers import make_controller
 from train_envs.controllers.base import Controller, TunableParam
+from train_envs.plants.lookup import gradient_table
 from train_envs.scenarios import DisturbanceSpec, Scenario, get_scenario, real_line_scenario
 from train_envs.simulation import ClosedLoop
 
@@ -178,6 +179,9 @@ class TrainTuningEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n,), dtype=np.float32)
 
         self.observation_names = self._observation_names()
+        self._n_preview = int(cfg["preview_points"])
+        self._preview_offsets = np.linspace(0.0, float(cfg["preview_m"]), self._n_preview)
+        self._obs_buf = np.zeros(len(self.observation_names))
         self.observation_space = spaces.Box(
             -OBS_CLIP, OBS_CLIP, shape=(len(self.observation_names),), dtype=np.float32
         )
@@ -242,34 +246,30 @@ class TrainTuningEnv(gym.Env):
         ref = sc.reference
         v_max = self._v_scale
         end = sc.s_stop_m if sc.s_stop_m is not None else ref.end_m
-        try:
-            t_ref = float(ref.profile.t_at_s(s))
-        except Exception:  # noqa: BLE001 - profile without a time index
-            t_ref = t
-        k = int(self.config["preview_points"])
-        pts = s + np.linspace(0.0, float(self.config["preview_m"]), k)
-        grads = np.asarray(sc.track.equivalent_gradient_permil_at(pts), float) / 30.0
-        lims = np.asarray(sc.track.speed_limit_at(pts), float) / v_max
-        u = float(np.sum(loop.u_prev))
+        t_ref = float(ref.profile.t_at_s(s))
+        pts = s + self._preview_offsets
+        grads = gradient_table(sc.track)(pts) * (1.0 / 30.0)
+        lims = sc.track.speed_limit_at(pts) * (1.0 / v_max)
+        u = float(loop.u_prev.sum())
         u_scale = sc.train.max_traction_force_N
         du = (u - self._u_before) / (u_scale * sc.dt_ctrl_s * self.config["decision_interval"])
-        obs = np.concatenate(
-            (
-                [
-                    (ref.v_ref(t, s) - v) / 5.0,
-                    (ref.s_ref(t) - s) / 50.0,
-                    v / v_max,
-                    (end - s) / 1000.0,
-                    (t_ref - t) / 30.0,
-                ],
-                grads,
-                lims,
-                [u / u_scale, du],
-                self._prev_action,
-                [float(bool(loop.last_info.get("fallback", False)))],
-            )
+        obs = self._obs_buf
+        obs[:5] = (
+            (ref.v_ref(t, s) - v) / 5.0,
+            (ref.s_ref(t) - s) / 50.0,
+            v / v_max,
+            (end - s) / 1000.0,
+            (t_ref - t) / 30.0,
         )
-        return np.clip(np.nan_to_num(obs), -OBS_CLIP, OBS_CLIP).astype(np.float32)
+        k = self._n_preview
+        obs[5 : 5 + k] = grads
+        obs[5 + k : 5 + 2 * k] = lims
+        j = 5 + 2 * k
+        obs[j : j + 2] = (u / u_scale, du)
+        na = self._prev_action.size
+        obs[j + 2 : j + 2 + na] = self._prev_action
+        obs[-1] = float(bool(loop.last_info.get("fallback", False)))
+        return np.clip(np.nan_to_num(obs), -OBS_CLIP, OBS_CLIP).astype(np.float32)  # copy
 
     # ------------------------------------------------------------- gym API
     def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
