@@ -246,6 +246,10 @@ class PointMassMPC(_TrainMPCBase):
         self._initialised = False
         self._w_hat = 0.0
         self._x_pred: np.ndarray | None = None
+        self._yref_buf = np.zeros((self.Np, 2))
+        self._ymax_buf = np.full((self.Np, 2), 1e6)
+        if ctx.s_stop_m is not None:
+            self._ymax_buf[:, 0] = ctx.s_stop_m
 
     # --------------------------------------------------------------- helpers
     def _observe(self, x: np.ndarray) -> None:
@@ -309,23 +313,25 @@ class PointMassMPC(_TrainMPCBase):
             self._discretise(max(v_now, 0.0))
             self._mpc.set_model(self._Ad, self._Bd)
         D = np.outer(self._affine(s_r, v_r), self._Ed)
-        y_ref = np.column_stack([s_r, v_r])
-        vmax = np.asarray(ctx.track.speed_limit_at(s_r), float) if ctx.track is not None else None
-        y_max = np.column_stack(
-            [
-                np.full(self.Np, ctx.s_stop_m if ctx.s_stop_m else 1e6),
-                vmax if vmax is not None else np.full(self.Np, 1e6),
-            ]
-        )
+        y_ref, y_max = self._yref_buf, self._ymax_buf
+        y_ref[:, 0] = s_r
+        y_ref[:, 1] = v_r
+        if ctx.track is not None:
+            y_max[:, 1] = ctx.track.speed_limit_at(s_r)
         sol = self._mpc.solve(x, np.array([u_prev]), y_ref, d=D, y_max=y_max)
         a_cmd = float(sol.u0[0])
         # the speed-dependent envelope (power limit) is tighter than the QP's static box
         v = obs.v_mps
         a_cmd = min(max(a_cmd, -ctx.train.max_brake_N(v) / mi), ctx.train.max_traction_N(v) / mi)
         # one-step prediction of the next measurement, for the disturbance observer
+        # (the affine term of the coming interval, ŵ included: the dead-time prediction's
+        # first stage when there is a dead time)
         u_act = self._pending[0] if self._l else a_cmd
-        s_1, v_1 = self._reference(obs.t_s - ctx.dt_s, obs.s_m, 1)
-        w_1 = float(self._affine(s_1, v_1)[0]) + self._w_hat
+        if self._l:
+            w_1 = float(w[0])
+        else:
+            s_1, v_1 = self._reference(obs.t_s - ctx.dt_s, obs.s_m, 1)
+            w_1 = float(self._affine(s_1, v_1)[0])
         self._x_pred = self._Ad @ x_meas + self._Bd[:, 0] * u_act + self._Ed * w_1
         if self._l:
             self._pending.append(a_cmd)
