@@ -34,8 +34,13 @@ def bench(scenario: str, ctrl) -> dict[str, float]:
         fallbacks += bool(info["fallback"])
         loop.step(u)
     w, s = np.median(walls), np.median(solves)
-    return {"wall_us": 1e6 * w, "osqp_us": 1e6 * s, "ratio": w / s,
-            "steps": len(walls), "failed": fallbacks / len(walls)}
+    return {
+        "wall_us": 1e6 * w,
+        "osqp_us": 1e6 * s,
+        "ratio": w / s,
+        "steps": len(walls),
+        "failed": fallbacks / len(walls),
+    }
 
 
 def main() -> None:
@@ -45,12 +50,16 @@ def main() -> None:
         ("paper000_single_section", "6-car SEMPC, N=10", MultiCarMPC(Np=10)),
         ("paper000_single_section", "6-car SEMPC, N=20", MultiCarMPC(Np=20)),
     ]
-    print("| problem | steps | median wall/step [µs] | median OSQP solve [µs] | ratio | failed solves |")
+    print(
+        "| problem | steps | median wall/step [µs] | median OSQP solve [µs] | ratio | failed solves |"
+    )
     print("|---|---:|---:|---:|---:|---:|")
     for scenario, label, ctrl in cases:
         r = bench(scenario, ctrl)
-        print(f"| {label} | {r['steps']} | {r['wall_us']:.0f} | {r['osqp_us']:.0f} | "
-              f"{r['ratio']:.2f} | {100 * r['failed']:.2f} % |")
+        print(
+            f"| {label} | {r['steps']} | {r['wall_us']:.0f} | {r['osqp_us']:.0f} | "
+            f"{r['ratio']:.2f} | {100 * r['failed']:.2f} % |"
+        )
 
 
 if __name__ == "__main__":

@@ -132,6 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["all", "scenarios", "controllers", "trains", "tracks", "envs"],
     )
     pl.set_defaults(func=cmd_list)
+    from tuners.cli import add_tune_parser
+
+    add_tune_parser(sub)
     pr = sub.add_parser("reproduce", help="print our results beside a paper's tables")
     pr.add_argument("paper", choices=["paper000"])
     pr.add_argument("--seed", type=int, default=0)

@@ -1,0 +1,52 @@
+"""Tuners: search an env's inner-controller parameters over closed-loop episodes.
+
+Algorithms (pymoo ``Algorithm`` subclasses): :class:`~tuners.mowoa.MOWOA` (paper 004's
+multi-objective whale optimisation), :class:`~tuners.pso.PSO` (scalarised PSO, 004's
+comparator) and :class:`~tuners.pso.MOPSO`; pymoo's NSGA-II and MOEA/D as baselines.
+:func:`~tuners.run.tune` runs them on an env id with parallel evaluation
+(:mod:`tuners.backends`), an Optuna study per run and resumable checkpoints
+(:mod:`tuners.storage`); :mod:`tuners.plots` draws the results and
+:func:`~tuners.cli.add_tune_parser` adds ``train-envs tune``.
+
+Names are imported lazily (``import tuners`` stays cheap).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "MOWOA": "tuners.mowoa",
+    "PSO": "tuners.pso",
+    "MOPSO": "tuners.pso",
+    "select_by_cosine": "tuners.mowoa",
+    "tchebycheff": "tuners.mowoa",
+    "weight_vectors": "tuners.mowoa",
+    "EnvTuningProblem": "tuners.problem",
+    "PymooTaskProblem": "tuners.problem",
+    "TaskProblem": "tuners.problem",
+    "Evaluations": "tuners.backends",
+    "make_backend": "tuners.backends",
+    "StudyStore": "tuners.storage",
+    "evaluations_frame": "tuners.storage",
+    "TuneResult": "tuners.run",
+    "load_result": "tuners.run",
+    "show": "tuners.run",
+    "summarize": "tuners.run",
+    "run_weight_vectors": "tuners.run",
+    "tune": "tuners.run",
+    "add_tune_parser": "tuners.cli",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'tuners' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return __all__

@@ -1,4 +1,4 @@
-r"""Linear MPC quadratic-programming core (condensed form, solved with OSQP).
+r"""Linear MPC quadratic-programming core (OSQP; condensed or sparse QP).
 
 This module knows nothing about trains.  It turns a discrete linear model, a
 quadratic tracking cost and box / polyhedral constraints into one quadratic
@@ -22,121 +22,150 @@ default) uses the :math:`\Delta u`-augmented form of Maciejowski (2002, sec. 2.4
               + \begin{bmatrix} B \\ I \end{bmatrix} \Delta u_k
               + \begin{bmatrix} d_k \\ 0 \end{bmatrix},
 
-so that the decision variables are the increments
-:math:`z = (\Delta u_0, \dots, \Delta u_{N_c-1})`.  With ``delta_u=False`` the
-decision variables are the absolute inputs :math:`z = (u_0, \dots, u_{N_c-1})`.
-After the control horizon the input is held: :math:`\Delta u_i = 0` (equivalently
-:math:`u_i = u_{N_c-1}`) for :math:`N_c \le i < N_p`.  Both forms are condensed
-the same way: the augmented prediction is written out as affine maps
+whose condensed decision variables are the increments
+:math:`z = (\Delta u_0, \dots, \Delta u_{N_c-1})`; with ``delta_u=False`` they are
+the absolute inputs :math:`z = (u_0, \dots, u_{N_c-1})`.  After the control
+horizon the input is held (:math:`\Delta u_i = 0`, i.e. :math:`u_i = u_{N_c-1}`
+for :math:`N_c \le i < N_p`).  The augmented prediction is written out as affine
+maps of :math:`z`, the previous input :math:`u_{-1}` and the data:
 
 .. math::
 
     U = T_z z + T_u u_{-1},\quad \Delta U = D_z z + D_u u_{-1},\quad
     X = \Phi x_0 + \Gamma U + \Gamma_d D,\quad Y = (I \otimes C) X,
 
-where :math:`X = (x_1,\dots,x_{N_p})`, :math:`U = (u_0,\dots,u_{N_p-1})` and
-:math:`u_{-1}` is the previously applied input.
+with :math:`X = (x_1,\dots,x_{N_p})`, :math:`U = (u_0,\dots,u_{N_p-1})`.
 
-QP (decision :math:`w = (z, \varepsilon)`)
--------------------------------------------
+QP
+--
 .. math::
 
-    \min_{z,\ \varepsilon}\ \sum_{i=1}^{N_p} \lVert y_i - r_i\rVert_Q^2
+    \min\ \sum_{i=1}^{N_p} \lVert y_i - r_i\rVert_Q^2
       + \sum_{i=0}^{N_c-1} \lVert \Delta u_i\rVert_R^2
       + \sum_{i=0}^{N_p-1} \lVert u_i - u^{\mathrm{ref}}_i\rVert_S^2
-      + \lVert x_{N_p} - x^{\mathrm{ref}}_{N_p}\rVert_P^2
-      + \rho^\top \varepsilon + \gamma\,\varepsilon^\top \varepsilon
+      + \lVert x_{N_p} - x^{\mathrm{ref}}_{N}\rVert_P^2
+      + \sum_k \bigl(\rho_k \varepsilon_k + \gamma_k \varepsilon_k^2\bigr)
 
 subject to
 
-* hard input box:       :math:`u_{\min} \le u_i \le u_{\max}`,  :math:`i < N_c`
-  (the held inputs after :math:`N_c` are equal to :math:`u_{N_c-1}`);
-* hard rate box:        :math:`\Delta u_{\min} \le \Delta u_i \le \Delta u_{\max}`;
-* output box (soft):    :math:`y_{\min,i} - \varepsilon \le y_i \le y_{\max,i} + \varepsilon`,
-  :math:`i = 1..N_p`, bounds may vary per stage;
-* polyhedra (soft):     :math:`H_y y_i \le h_{y,i} + \varepsilon`,
-  :math:`H_x x_i \le h_{x,i} + \varepsilon`;
-* terminal (soft):      :math:`x_{N,\min} - \varepsilon \le x_{N_p} \le x_{N,\max} + \varepsilon`,
-  :math:`H_N x_{N_p} \le h_N + \varepsilon`;
-* :math:`\varepsilon \ge 0`, one slack per constraint row and stage.
+* hard input box   :math:`u_{\min} \le u_i \le u_{\max}` (:math:`i < N_c`; the held
+  inputs equal :math:`u_{N_c-1}`) and hard rate box
+  :math:`\Delta u_{\min} \le \Delta u_i \le \Delta u_{\max}`;
+* soft output box  :math:`y_{\min,i} - \varepsilon \le y_i \le y_{\max,i} + \varepsilon`
+  (:math:`i = 1..N_p`, bounds may vary per stage), soft polyhedra
+  :math:`H_y y_i \le h_{y,i} + \varepsilon`, :math:`H_x x_i \le h_{x,i} + \varepsilon`,
+  optional soft terminal box / polyhedron on :math:`x_{N_p}`;
+* :math:`\varepsilon \ge 0`: one slack per constraint row and stage.
 
-The linear slack cost :math:`\rho^\top\varepsilon` is an *exact* (L1) penalty: if
-the hard-constrained problem is feasible and :math:`\rho` exceeds the dual-norm of
-its Lagrange multipliers, the soft QP returns the hard solution with
-:math:`\varepsilon = 0` (Kerrigan & Maciejowski 2000); otherwise the QP stays
-feasible and the violation is minimised.  The tiny quadratic
-:math:`\gamma\,\varepsilon^\top\varepsilon` only makes the problem strictly convex
-in :math:`\varepsilon`.  A penalty of ``np.inf`` for a row makes that row a hard
-constraint (no slack).  Input and rate constraints are always hard; if the
-previous input lies outside ``[u_min, u_max]`` while rates are limited, the
-input bounds of the first stages are relaxed to what the rate limits can reach
-(``u_i`` moves to the box at the maximal rate) so the QP stays feasible.
+The linear slack cost is an *exact* (L1) penalty (Kerrigan & Maciejowski 2000):
+when the hard-constrained problem is feasible and :math:`\rho_k` exceeds the
+corresponding Lagrange multiplier, the soft QP returns the hard solution with
+:math:`\varepsilon = 0`; otherwise the QP stays feasible and the violation is
+minimised.  The quadratic :math:`\gamma_k \varepsilon_k^2` (default
+:math:`\gamma_k = 0.01 \rho_k`) makes the QP strictly convex in
+:math:`\varepsilon` and never changes the exactness threshold; for physically
+small violations it is negligible next to :math:`\rho_k \varepsilon_k`, but it
+matters for ADMM: in the closed loop of benchmark system (a) with
+:math:`\rho = 10^5`, :math:`\gamma = 1` left about half of the steps with a
+violated soft constraint unsolved after 4000 iterations (the QP then behaves like
+a degenerate LP whose multipliers sit at :math:`\rho`); with
+:math:`\gamma = 0.01\rho` all were solved.  A penalty of ``np.inf``
+makes a row hard (no slack).  If the previous input lies outside
+``[u_min, u_max]`` while rates are limited, the input bounds of the first stages
+are relaxed to what the rate limits can reach, so the QP stays feasible.
 
-Internally each slack is stored scaled, :math:`\varepsilon = \varepsilon'/\rho`,
-so that the linear cost of :math:`\varepsilon'` is 1.  This keeps the penalty
-out of :math:`\lVert q\rVert_\infty`, which OSQP uses in its relative
-dual-residual tolerance; with :math:`\rho = 10^5` in :math:`q` the tolerance
-``eps_rel * ||q||`` would be 1e5 times looser on the inputs.
+Every vector that changes between sampling instants (``q``, the constraint
+offsets, the predicted free response, the constant part of the cost) is linear in
+the parameter vector
+:math:`\theta = (1, x_0, u_{-1}, r, x^{\mathrm{ref}}_N, d, u^{\mathrm{ref}}, D)` and
+is obtained from one pre-computed matrix-vector product per step.
 
-The condensed QP in OSQP form is :math:`\tfrac12 w^\top P w + q^\top w`,
-:math:`l \le A w \le u` with :math:`P = 2\,\mathrm{blkdiag}(E_z^\top W E_z,\ \gamma\rho^{-2})`,
-where :math:`E_z` stacks the sensitivities of all weighted residuals to
-:math:`z` and :math:`W` the weights.  Every vector that changes between
-sampling instants (``q``, the constraint offsets, the predicted free response,
-the constant part of the cost) is linear in the parameter vector
-:math:`\theta = (1, x_0, u_{-1}, r, x^{\mathrm{ref}}_N, d, u^{\mathrm{ref}}, D)`
-and is obtained from one pre-computed matrix-vector product per step.
+Two QP forms
+------------
+* **condensed** -- decision :math:`w = (z, \varepsilon)`; dense Hessian
+  :math:`2 E_z^\top W E_z` (``E_z``: sensitivities of all weighted residuals to
+  ``z``) and dense constraint rows;
+* **sparse** -- decision :math:`w = (X, U, \varepsilon)` with the dynamics as
+  equality rows; it always uses absolute inputs (the :math:`\Delta u` cost and
+  limits become banded rows), which is the same QP.  (Variables relative to the
+  free response were tried: OSQP's relative tolerances then become tighter when
+  states are large, and the mean solve time grew 1.7-6x on the benchmarks without
+  a more accurate first move, so absolute states are kept.)
+
+Both are shipped; they were measured with ``benchmarks/bench_mpc_core.py
+--crossover`` (OSQP 1.1.3, default settings, closed loops of 600 steps with
+reference changes and soft constraints that become active; one core of a shared
+2-core VM, so absolute times are +-20 %; median / mean wall time of ``solve()``):
+
+=====================================  ======================  ======================
+system, horizon                        condensed (med / mean)  sparse (med / mean)
+=====================================  ======================  ======================
+4 states, 1 input, N = 10                  60 /    610 us          170 /  1095 us
+4 states, 1 input, N = 20                 104 /   3349 us          341 /  3303 us
+4 states, 1 input, N = 30                 155 /   6457 us          459 /  4836 us
+2 states, 1 input, N = 30                 136 /   5207 us          341 /  4230 us
+12 states, 6 inputs, N = 3                662 /    937 us          350 /   346 us
+12 states, 6 inputs, N = 10              1830 /  17692 us         1834 /  2809 us
+12 states, 6 inputs, N = 20              8885 / 101276 us         5399 /  8938 us
+=====================================  ======================  ======================
+
+The condensed QP has the fewest variables and the cheapest iterations and wins
+the typical (median) step on single-input systems.  But its dense rows
+(long-horizon sensitivities, cumulative sums in the :math:`\Delta u` form) are
+badly conditioned for ADMM: during transients it needs hundreds to thousands of
+iterations, each refactorisation of its dense KKT system is expensive, and the
+mean time explodes with many inputs or long horizons (101 ms at N = 20 for the
+12-state system).  The sparse QP keeps local, well-conditioned rows.  At the
+default tolerance the condensed solution is the more accurate one (its dynamics
+are exact; the sparse residuals include the dynamics rows): on a 12-state,
+6-input train MPC with N = 3 the closed-loop metrics of the condensed form equal
+those of a 1e-9-tolerance solve while the sparse ones differ by up to 5 %.
+``form="auto"`` therefore picks condensed while it has few decision variables
+(``Nc*m <= 20``; its size does not depend on ``n``, the sparse one grows with
+``Np*n``) and sparse otherwise; ``form=`` overrides the choice.
+
+Accuracy at the default tolerances (first move against a 1e-10-tolerance solve
+along the benchmark closed loops, inputs in [-1, 1]): 4-state system median 1e-6,
+worst 1e-2; 12-state system median 2e-3 (condensed) to 2e-2 (sparse, N = 10),
+worst 5e-2.  OSQP's tolerances are relative to the largest entries of the problem
+(here the exact penalty :math:`\rho = 10^5` in ``q``, large positions); tighten
+``eps_rel``/``eps_abs``, set ``polishing=True`` or use a smaller ``soft_penalty``
+where the plan itself must be exact.  Rescaling the slacks (penalty entry of
+``q`` capped at 1e3) improved the worst case 30-100x but made ADMM fail on
+violated problems, so it was not kept.
 
 Solver
 ------
 OSQP (Stellato, Banjac, Goulart, Bemporad & Boyd 2020) is set up once per
 controller.  Each :meth:`LinearMPC.solve` only updates ``q``, ``l``, ``u`` and
-warm-starts from the shifted previous primal/dual solution.
+warm-starts from the previous primal/dual solution shifted by one stage.
 :meth:`LinearMPC.set_weights` / :meth:`LinearMPC.set_model` update the matrix
-values (``Px``, ``Ax``) of a sparsity pattern fixed at construction: the
-input-to-output sensitivities are stored as dense blocks (all entries allowed by
-causality, zero or not), so new values never change the pattern.
+values (``Px``, ``Ax``) of a sparsity pattern fixed at construction: every block
+a model or weight can touch is stored as a dense block (zeros included), so new
+values never change the pattern.
 
 Default OSQP settings: ``eps_abs = eps_rel = 1e-6``, ``max_iter = 4000``,
-``polishing = False``, ``check_dualgap = False``, ``verbose = False``.
-OSQP 1.x by default also requires a small duality gap before it stops; on the
-closed-loop MPC problems below this multiplied the iteration count by 2-20
-(e.g. 25 -> 275 iterations for the 12-state system at N = 20) without changing
-the primal/dual residual guarantees, so it is off by default (re-enable it with
-``osqp_settings={"check_dualgap": True}``).
+``polishing = False``, ``check_dualgap = False``, ``check_termination = 10``,
+``verbose = False``.  OSQP 1.x also stops only on a small duality gap by default;
+in the prototype closed loops that multiplied the iterations by 2-20 (e.g. median
+25 -> 275 for the condensed 12-state system at N = 20) without changing the
+residual guarantees, so it is off.  Checking termination every 10 instead of 25
+iterations cut the median wall time by 22-29 % on the benchmark systems.
 
-Condensed vs sparse (measured)
-------------------------------
-Both forms were prototyped (throwaway script, OSQP 1.1.3, one CPU core,
-closed loop of 150 steps with random state kicks, rho = 1e5 soft output
-bounds, Delta-u rate limits, eps = 1e-6, no polishing, ``check_dualgap`` off;
-median OSQP ``solve_time``):
-
-=====================================  ===========  ==========
-system / horizon                       condensed    sparse
-=====================================  ===========  ==========
-4 states, 1 input, N = 10               44 us        153 us
-12 states, 6 inputs, N = 3             179 us        289 us
-12 states, 6 inputs, N = 10            493 us        705 us
-12 states, 6 inputs, N = 20           1765 us       1701 us
-12 states, 6 inputs, N = 30           4900 us       2679 us
-=====================================  ===========  ==========
-
-The sparse form (states as variables, dynamics as equality rows) has a
-sparser KKT matrix but twice as many variables and rows and needed about twice
-the ADMM iterations (50 vs 25); the condensed form wins clearly for the small
-systems this library targets (n <= 20, m <= 6) up to N ~ 20 and is equal at
-N = 20 for 12 states; only for long horizons on the largest systems would the
-sparse form pay off.  Only the condensed form is shipped.
+When OSQP does not converge (maximum iterations, inaccurate, spurious
+infeasibility) :meth:`LinearMPC._rescue` continues from the last iterate with a
+relaxed tolerance and OSQP's polishing and, failing that, runs an exact
+active-set refinement whose KKT conditions are verified; only if everything fails
+does the controller fall back to the shifted previous plan (``fallback=True``).
 
 Speed notes
 -----------
 The python wrapper of OSQP 1.x costs ~15 us per ``update`` and ~25 us per
-``solve`` call on top of the C solver (it clips the bounds and packs the
-``info`` structure into a namespace).  For small problems that overhead is
-larger than the solve itself, so this module calls the compiled solver object
-(``OSQP._solver``) directly when it is available and falls back to the public
-API otherwise (``LinearMPC(..., fast_osqp=False)`` forces the public API).
+``solve`` call on top of the C solver (it clips the bounds and packs the ``info``
+structure into a namespace).  For small problems that is more than the solve
+itself, so this module calls the compiled solver object (``OSQP._solver``)
+directly when it is available and falls back to the public API otherwise
+(``LinearMPC(..., fast_osqp=False)`` forces the public API).
 
 References
 ----------
@@ -186,6 +215,7 @@ _DEFAULT_OSQP: dict[str, Any] = {
     "max_iter": 4000,
     "polishing": False,
     "check_dualgap": False,
+    "check_termination": 10,
     "verbose": False,
     "warm_starting": True,
 }
@@ -209,12 +239,16 @@ class MPCSolution:
             inputs of :meth:`LinearMPC.solve` were not finite).
         Y: predicted outputs ``y_1 .. y_{Np}``, shape ``(Np, p)``.
         status: OSQP status string (``"solved"``, ``"solved inaccurate"``,
-            ``"maximum iterations reached"``, ...) or ``"invalid input"`` /
-            ``"solver error"`` when OSQP was not (successfully) called.
-        status_val: OSQP status value (1 solved, 2 solved inaccurate, ...); -1
-            invalid (non-finite) input, -2 solver exception.
-        iterations: ADMM iterations.
-        solve_time_s: OSQP's own solve time (``info.solve_time``), seconds.
+            ``"maximum iterations reached"``, ``"primal infeasible"``, ...),
+            ``"solved (polished)"`` after a successful rescue (see
+            :meth:`LinearMPC._rescue`), or ``"invalid input"`` / ``"solver error"``
+            when OSQP was not (successfully) called.
+        status_val: OSQP status value (1 solved or polished, 2 solved inaccurate,
+            3 primal infeasible, 7 maximum iterations, 8 time limit, ...); -1 invalid
+            (non-finite) input, -2 solver exception.
+        iterations: ADMM iterations (all attempts).
+        solve_time_s: OSQP's own solve time ``info.solve_time`` (plus its polish
+            time when polishing is on, plus the rescue when one ran), seconds.
         overhead_s: wall time of :meth:`LinearMPC.solve` minus ``solve_time_s``
             (vector updates, warm start, result assembly), seconds.
         slack_max: largest soft-constraint violation (0 when all soft
@@ -263,6 +297,7 @@ class UnconstrainedGain:
     KxN: np.ndarray | None
     Np: int
     p: int
+    Cpinv: np.ndarray  # default terminal reference x_ref_N = Cpinv @ y_ref[-1]
 
     def apply(
         self,
@@ -285,9 +320,8 @@ class UnconstrainedGain:
             ur = np.broadcast_to(np.asarray(u_ref, float), (self.Np, m))
             u = u + self.Kur @ ur.ravel()
         if self.KxN is not None:
-            if x_ref_N is None:
-                raise ValueError("x_ref_N is required with a state terminal weight")
-            u = u + self.KxN @ np.asarray(x_ref_N, float)
+            xN = self.Cpinv @ r[-1] if x_ref_N is None else np.asarray(x_ref_N, float)
+            u = u + self.KxN @ xN
         return u
 
 
@@ -476,6 +510,8 @@ class _Backend:
             self.prob.setup(P, q, A, l, u, **settings)
         except ValueError as exc:
             raise ValueError(f"osqp_settings rejected by OSQP: {exc}") from exc
+        self.polishing = bool(settings.get("polishing", False))
+        self._status_names: dict[int, str] = {}
         raw = getattr(self.prob, "_solver", None)
         needed = ("update_data_vec", "update_data_mat", "warm_start", "solve", "solution", "info")
         self.raw = (
@@ -516,33 +552,49 @@ class _Backend:
                 res = self.prob.solve(raise_error=False)
             info = res.info
             x, y = res.x, res.y
-        stats = (
-            int(info.status_val),
-            info.status,
-            int(info.iter),
-            info.solve_time + info.polish_time,
-            info.obj_val,
-            int(info.status_polish),
-        )
-        return x, y, stats
+        val = int(info.status_val)
+        status = self.status_name(val, info)
+        if self.polishing:
+            t = info.solve_time + info.polish_time
+            polished = int(info.status_polish)
+        else:
+            t = info.solve_time
+            polished = 0
+        return x, y, (val, status, int(info.iter), t, info.obj_val, polished)
+
+    def status_name(self, val: int, info: Any) -> str:
+        """OSQP status string of ``val`` (cached: reading it from ``info`` is slow)."""
+        name = self._status_names.get(val)
+        if name is None:
+            name = self._status_names[val] = str(info.status)
+        return name
 
     def rescue(
         self, x: np.ndarray, y: np.ndarray, eps: float, polishing: bool, restore: dict[str, Any]
     ) -> tuple[np.ndarray, np.ndarray, _Stats]:
         """Continue from ``(x, y)`` with tolerance ``eps`` and polishing, then restore settings."""
         self.prob.update_settings(eps_abs=eps, eps_rel=eps, polishing=polishing)
+        self.polishing = polishing
         try:
             self.warm_start(x, y)
             return self.solve()
         finally:
             self.prob.update_settings(**restore)
+            self.polishing = bool(restore.get("polishing", False))
 
 
 # ---------------------------------------------------------------------------
 # controller
 # ---------------------------------------------------------------------------
 class LinearMPC:
-    r"""Condensed linear MPC solved with OSQP (see the module docstring for the QP).
+    r"""Linear MPC solved with OSQP (see the module docstring for the QP).
+
+    Typical loop::
+
+        mpc = LinearMPC(A, B, C, Np=20, Q=Q, R=R, u_min=-1, u_max=1, du_min=-0.1,
+                        du_max=0.1, y_max=[v_max], soft_penalty=1e5)
+        sol = mpc.solve(x, u_prev, y_ref, d=d)   # never raises on solver failure
+        u_prev = sol.u0                          # finite, inside box and rate window
 
     Args:
         A, B, C: model matrices, shapes ``(n, n)``, ``(n, m)``, ``(p, n)``;
@@ -571,9 +623,10 @@ class LinearMPC:
             (default) uses ``gamma_k = 0.01 * rho_k`` per row.  For physically small
             violations this term is negligible next to ``rho_k * eps_k`` (it never
             changes the exact-penalty threshold), but its curvature makes violated
-            problems far easier for ADMM (measured: 0 instead of ~10 % unsolved
-            violated steps with ``gamma = 1``).
-        delta_u: decision variables are increments (default) or absolute inputs.
+            problems far easier for ADMM (see the module docstring).
+        delta_u: condensed decision variables are the increments (default) or the
+            absolute inputs; both give the same optimum.  The sparse form always
+            uses absolute inputs as variables.
         terminal: ``"state"`` or ``"output"`` (what ``P`` weights).
         osqp_settings: overrides of the default OSQP settings (``eps_abs``,
             ``eps_rel``, ``max_iter``, ``polishing``, ``time_limit``, ...).
@@ -584,6 +637,8 @@ class LinearMPC:
         rescue: on a non-converged solve, try the relaxed/polished second attempt
             and the exact active-set refinement before falling back (default True;
             see :meth:`_rescue`).
+        form: ``"condensed"``, ``"sparse"`` or ``"auto"`` (default; condensed for
+            ``Nc*m <= 20``, see the module docstring).
     """
 
     def __init__(
@@ -620,6 +675,7 @@ class LinearMPC:
         fast_osqp: bool = True,
         warm_start: str = "shift",
         rescue: bool = True,
+        form: str = "auto",
     ) -> None:
         # ---- model ---------------------------------------------------------
         A_, B_, C_ = self._check_model(A, B, C, None)
@@ -666,6 +722,13 @@ class LinearMPC:
             )
         self._ws_mode = warm_start
         self._rescue_on = bool(rescue)
+        if form not in ("auto", "condensed", "sparse"):
+            raise ValueError(f"form must be 'auto', 'condensed' or 'sparse', got {form!r}")
+        if form == "auto":
+            form = self._auto_form(self.Np, self.Nc, n, m)
+        self.form = form
+        self._sparse = form == "sparse"
+        self._zdu = self.delta_u and not self._sparse
 
         # ---- output / state constraints --------------------------------------
         self._groups = self._make_groups(
@@ -690,6 +753,17 @@ class LinearMPC:
         )
         self._backend = _Backend(P0, self._q_init(), A0, self._l, self._u, settings, fast_osqp)
         self.reset()
+
+    @staticmethod
+    def _auto_form(Np: int, Nc: int, n: int, m: int) -> str:
+        """QP form chosen by ``form="auto"`` (measured crossover, see the module docstring).
+
+        Condensed for few decision variables (``Nc*m <= 20``), sparse otherwise.  The
+        state dimension does not enter: the condensed QP does not grow with ``n``
+        (e.g. a DMC FIR register), while the sparse one does.
+        """
+        del Np, n
+        return "condensed" if Nc * m <= 20 else "sparse"
 
     # ------------------------------------------------------------------ checks
     def _check_model(
@@ -822,9 +896,12 @@ class LinearMPC:
     # ------------------------------------------------------------------ layout
     def _layout(self) -> None:
         """Fix the variable/row layout, sparsity patterns and parameter slots."""
-        n, m, p, Np, Nc = self.n, self.m, self.p, self.Np, self.Nc
+        n, m, Np, Nc = self.n, self.m, self.Np, self.Nc
         nz = Nc * m
         self._nz = nz
+        sparse = self._sparse
+        nxv = Np * n if sparse else 0  # state variables (sparse form only)
+        self._nxv = nxv
 
         # parameter vector theta = [1, x0, u_prev, r, (xN), d, (u_ref), D]
         slots: dict[str, slice] = {}
@@ -833,7 +910,7 @@ class LinearMPC:
             ("one", 1, True),
             ("x0", n, True),
             ("up", m, True),
-            ("r", Np * p, True),
+            ("r", Np * self.p, True),
             ("xN", n, self._P is not None and self.terminal == "state"),
             ("d", n, True),
             ("ur", Np * m, self._S is not None),
@@ -846,8 +923,7 @@ class LinearMPC:
         self._ntheta = pos
         self._nb = slots["D"].start  # parameters without the D sequence
 
-        # constraint rows ----------------------------------------------------
-        # each output/state row: (group index, stage, row-in-group)
+        # output/state constraint rows: (group, stage, row-in-group) ----------------
         con_g, con_s, con_r, con_lo, con_hi, con_rho, con_two = [], [], [], [], [], [], []
         for gi, g in enumerate(self._groups):
             R_ = g.G.shape[0]
@@ -872,47 +948,56 @@ class LinearMPC:
         soft2_c = soft_c[ctwo[soft_c]]  # soft rows that also get a lower-side row
         self._con = {"g": cg, "s": cs, "r": cr, "lo": clo, "hi": chi, "rho": crho}
         self._hard_c, self._soft_c, self._soft2_c = hard_c, soft_c, soft2_c
+        self._soft2_slack = np.searchsorted(soft_c, soft2_c)
         ns = soft_c.size
         self._ns = ns
-        self._nv = nz + ns
+        self._oz = nxv  # first input variable
+        self._oe = nxv + nz  # first slack variable
+        self._nv = nxv + nz + ns
 
+        # row layout: [dynamics (sparse) | hard | soft upper | soft lower | eps >= 0] ----
+        r0 = nxv
         n_u = nz
         n_du = nz if self._has_du else 0
-        nh = n_u + n_du + hard_c.size
-        self._nh = nh
-        self._nlu = nh + ns + soft2_c.size  # rows whose bounds change per step
+        o = r0 + n_u + n_du  # first hard output/state row
+        nh = o + hard_c.size
+        self._r0, self._nh = r0, nh
+        self._nlu = nh + ns + soft2_c.size  # rows whose bounds may change per step
         self._nA = self._nlu + ns
+        # rows whose offsets depend on theta (condensed: all; sparse: dynamics, input and
+        # rate rows -- the state/output rows act on the variables and have fixed bounds)
+        self._off = slice(0, self._nlu if not sparse else o)
 
-        # base bounds (prefix) -------------------------------------------------
-        Lb = np.empty(self._nlu)
-        Ub = np.empty(self._nlu)
-        Lb[:n_u] = np.tile(self._umin, Nc)
-        Ub[:n_u] = np.tile(self._umax, Nc)
+        Lb = np.zeros(self._nlu)
+        Ub = np.zeros(self._nlu)
+        Lb[r0 : r0 + n_u] = np.tile(self._umin, Nc)
+        Ub[r0 : r0 + n_u] = np.tile(self._umax, Nc)
         if n_du:
-            Lb[n_u : n_u + n_du] = np.tile(self._dumin, Nc)
-            Ub[n_u : n_u + n_du] = np.tile(self._dumax, Nc)
-        o = n_u + n_du
+            Lb[r0 + n_u : o] = np.tile(self._dumin, Nc)
+            Ub[r0 + n_u : o] = np.tile(self._dumax, Nc)
         Lb[o:nh] = clo[hard_c]
         Ub[o:nh] = chi[hard_c]
         Lb[nh : nh + ns] = -np.inf
         Ub[nh : nh + ns] = chi[soft_c]
         Lb[nh + ns :] = clo[soft2_c]
         Ub[nh + ns :] = np.inf
-        self._Lb0 = np.clip(Lb, -_BIG, _BIG)
-        self._Ub0 = np.clip(Ub, -_BIG, _BIG)
-        self._Lb = self._Lb0.copy()
-        self._Ub = self._Ub0.copy()
+        # lower/upper bounds are rows of 2-D arrays so one ufunc call updates both
+        self._LUb0 = np.clip(np.vstack([Lb, Ub]), -_BIG, _BIG)
+        self._LUb = self._LUb0.copy()
+        self._Lb0, self._Ub0 = self._LUb0[0], self._LUb0[1]
+        self._Lb, self._Ub = self._LUb[0], self._LUb[1]
         self._bounds_dirty = False
-        self._l = np.empty(self._nA)
-        self._u = np.empty(self._nA)
-        self._l[: self._nlu] = self._Lb0
-        self._u[: self._nlu] = self._Ub0
+        self._LU = np.empty((2, self._nA))
+        self._l, self._u = self._LU[0], self._LU[1]
+        self._LU[:, : self._nlu] = self._LUb0
         self._l[self._nlu :] = 0.0
         self._u[self._nlu :] = _BIG
         kk = np.arange(1, Nc + 1, dtype=float)[:, None]
-        with np.errstate(invalid="ignore"):
-            self._k_dumax = kk * self._dumax[None, :]  # (Nc, m): reach of k rate steps
-            self._k_dumin = kk * self._dumin[None, :]
+        off = self._off  # views used by solve()
+        self._Lb_off, self._Ub_off = self._Lb[off], self._Ub[off]
+        self._l_off, self._u_off = self._l[off], self._u[off]
+        self._k_dumax = kk * self._dumax[None, :]  # (Nc, m): reach of k rate-limited steps
+        self._k_dumin = kk * self._dumin[None, :]
         self._umin_t = np.tile(self._umin, (Nc, 1))
         self._umax_t = np.tile(self._umax, (Nc, 1))
 
@@ -931,40 +1016,56 @@ class LinearMPC:
             g.ub_pos = ub_all[idx].reshape(shape)
             g.lb_pos = lb_all[idx].reshape(shape)
 
-        # sparsity patterns -------------------------------------------------------
-        # z-columns of output/state rows: block j of z influences stage i iff j <= i-1
-        blk = np.arange(nz) // m
-        cmask = blk[None, :] <= (cs[:, None] - 1)  # (ncon, nz)
-        if self.delta_u:
+        # input parametrisation (decision z: increments in the condensed Delta-u form,
+        # absolute inputs otherwise; the sparse form always uses absolute inputs)
+        if self._zdu:
             Tz_c = np.kron(np.tril(np.ones((Nc, Nc))), np.eye(m))
             Dz = np.eye(nz)
         else:
             Tz_c = np.eye(nz)
             Dz = np.eye(nz) - np.eye(nz, k=-m)
+        self._Tz_c, self._Dz = Tz_c, Dz
+
+        # sparsity patterns: every entry a model/weight change could touch --------------
+        oz, oe = self._oz, self._oe
         Amask = np.zeros((self._nA, self._nv), dtype=bool)
-        Amask[:n_u, :nz] = Tz_c != 0
+        Amask[r0 : r0 + n_u, oz : oz + nz] = Tz_c != 0
         if n_du:
-            Amask[n_u : n_u + n_du, :nz] = Dz != 0
-        Amask[o:nh, :nz] = cmask[hard_c]
-        Amask[nh : nh + ns, :nz] = cmask[soft_c]
-        Amask[nh + ns : self._nlu, :nz] = cmask[soft2_c]
+            Amask[r0 + n_u : o, oz : oz + nz] = Dz != 0
+        con_rows = np.concatenate([hard_c, soft_c, soft2_c])
+        con_at = np.concatenate([np.arange(o, nh), np.arange(nh, self._nlu)])
+        if sparse:
+            hold = np.minimum(np.arange(Np), Nc - 1)
+            for t in range(Np):  # -x_{t+1} + A x_t + B u_t + offset = 0
+                rows = slice(t * n, (t + 1) * n)
+                Amask[rows, t * n : (t + 1) * n] |= np.eye(n, dtype=bool)
+                if t:
+                    Amask[rows, (t - 1) * n : t * n] = True
+                Amask[rows, oz + hold[t] * m : oz + (hold[t] + 1) * m] = True
+            for k, rr in zip(con_rows, con_at, strict=True):  # dense block on x_stage
+                st = cs[k] - 1
+                Amask[rr, st * n : (st + 1) * n] = True
+        else:
+            # z-block j influences stage i iff j <= i - 1
+            blk = np.arange(nz) // m
+            Amask[con_at, :nz] = blk[None, :] <= (cs[con_rows, None] - 1)
         sl = np.arange(ns)
-        Amask[nh + sl, nz + sl] = True
+        Amask[nh + sl, oe + sl] = True
         if soft2_c.size:
-            Amask[nh + ns + np.arange(soft2_c.size), nz + np.searchsorted(soft_c, soft2_c)] = True
-        Amask[self._nlu + sl, nz + sl] = True
+            Amask[nh + ns + np.arange(soft2_c.size), oe + self._soft2_slack] = True
+        Amask[self._nlu + sl, oe + sl] = True
         Pmask = np.zeros((self._nv, self._nv), dtype=bool)
-        Pmask[:nz, :nz] = np.triu(np.ones((nz, nz), dtype=bool))
-        Pmask[nz + sl, nz + sl] = True
+        Pmask[oz : oz + nz, oz : oz + nz] = np.triu(np.ones((nz, nz), dtype=bool))
+        if sparse:
+            blk_n = np.triu(np.ones((n, n), dtype=bool))
+            for t in range(Np):
+                Pmask[t * n : (t + 1) * n, t * n : (t + 1) * n] = blk_n
+        Pmask[oe + sl, oe + sl] = True
         self._Amask, self._Pmask = Amask, Pmask
         self._A_rows, self._A_cols, self._A_ptr, self._A_ind = _csc_pattern(Amask)
         self._P_rows, self._P_cols, self._P_ptr, self._P_ind = _csc_pattern(Pmask)
 
-        # warm-start shift maps ---------------------------------------------------
-        # primal: z block j <- j+1 (last: 0 for Delta u, held u otherwise); slacks by stage
-        zsrc = np.arange(nz) + m
-        last = np.arange(nz - m, nz)
-        zsrc[-m:] = self._nv if self.delta_u else last  # index nv -> the appended 0
+        # warm-start shift maps --------------------------------------------------------
         key_to_con = {
             (g_, s_, r_): k for k, (g_, s_, r_) in enumerate(zip(cg, cs, cr, strict=True))
         }
@@ -976,20 +1077,29 @@ class LinearMPC:
         soft2_index = {int(c): i for i, c in enumerate(soft2_c)}
         hard_index = {int(c): i for i, c in enumerate(hard_c)}
         esrc = np.array([soft_index[next_con(int(c))] for c in soft_c], dtype=np.int64)
-        self._xshift = np.concatenate([zsrc, nz + esrc]).astype(np.int64)
-        # dual: same stage shift row by row
+        stage_next = np.minimum(np.arange(Np) + 1, Np - 1)
+        xsrc = (stage_next[:, None] * n + np.arange(n)[None, :]).ravel() if sparse else []
+        zsrc = np.arange(nz) + m
+        zsrc[-m:] = self._nv if self._zdu else np.arange(nz - m, nz)  # nv -> appended 0
+        zsrc[: nz - m] += oz
+        if not self._zdu:
+            zsrc[-m:] += oz
+        self._xshift = np.concatenate([np.asarray(xsrc, dtype=np.int64), zsrc, oe + esrc]).astype(
+            np.int64
+        )
         ysrc = np.arange(self._nA)
+        if sparse:
+            ysrc[:r0] = xsrc
         ublk = np.arange(n_u) + m
         ublk[-m:] -= m
-        ysrc[:n_u] = ublk
+        ysrc[r0 : r0 + n_u] = r0 + ublk
         if n_du:
-            ysrc[n_u : n_u + n_du] = n_u + ublk
+            ysrc[r0 + n_u : o] = r0 + n_u + ublk
         ysrc[o:nh] = [o + hard_index[next_con(int(c))] for c in hard_c]
         ysrc[nh : nh + ns] = nh + esrc
         ysrc[nh + ns : self._nlu] = [nh + ns + soft2_index[next_con(int(c))] for c in soft2_c]
         ysrc[self._nlu :] = self._nlu + esrc
         self._yshift = ysrc.astype(np.int64)
-        self._Tz_c, self._Dz = Tz_c, Dz
 
     # ------------------------------------------------------------------ build
     def _sel(self, name: str, ntheta: int) -> np.ndarray:
@@ -999,13 +1109,19 @@ class LinearMPC:
         return M
 
     def _build(self) -> None:
-        """Compute every model/weight-dependent matrix (dense) and the OSQP values."""
+        """Compute every model/weight-dependent matrix (dense) and the OSQP values.
+
+        The condensed quantities (prediction matrices, Hessian ``H``, the maps of the
+        constraint rows onto ``z``) are built for both forms: they give
+        :meth:`gain_unconstrained`, the exact refinement and the fallback prediction.
+        """
         n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
         A, B, C = self._A, self._B, self._C
         nt = self._ntheta
         sel = self._sel
+        sparse = self._sparse
 
-        # prediction matrices --------------------------------------------------
+        # condensed prediction -------------------------------------------------------
         powers = [np.eye(n)]
         for _ in range(Np):
             powers.append(A @ powers[-1])
@@ -1016,9 +1132,8 @@ class LinearMPC:
             for t in range(i + 1):
                 Gam[i * n : (i + 1) * n, t * m : (t + 1) * m] = powers[i - t] @ B
                 GamD[i * n : (i + 1) * n, t * n : (t + 1) * n] = powers[i - t]
-        # input parametrisation over the whole prediction horizon
         hold = np.minimum(np.arange(Np), Nc - 1)  # stage t uses block hold[t]
-        if self.delta_u:
+        if self._zdu:
             blocks = (np.arange(Nc)[None, :] <= hold[:, None]).astype(float)
             Tu = np.kron(np.ones((Np, 1)), np.eye(m))
             Du = np.zeros((nz, m))
@@ -1029,24 +1144,23 @@ class LinearMPC:
             Du[:m] = -np.eye(m)
         Tz = np.kron(blocks, np.eye(m))
         Cb = np.kron(np.eye(Np), C)
-
-        Sx = Gam @ Tz  # (Np n, nz)
+        Sx = Gam @ Tz
         Sy = Cb @ Sx
         ones_n = np.kron(np.ones((Np, 1)), np.eye(n))
-        Xth = (
-            Phi @ sel("x0", nt)
-            + Gam @ Tu @ sel("up", nt)
-            + GamD @ (ones_n @ sel("d", nt) + sel("D", nt))
-        )
+        Dth = ones_n @ sel("d", nt) + sel("D", nt)  # affine term of every stage
+        Xth = Phi @ sel("x0", nt) + Gam @ Tu @ sel("up", nt) + GamD @ Dth
         Yth = Cb @ Xth
-        Uth = Tu @ sel("up", nt)  # (Np m, nt)
+        Uth = Tu @ sel("up", nt)
         dUth = Du @ sel("up", nt)
 
-        # weighted residuals e = Ez z + Eth theta, weights W ----------------------
+        # weighted residuals e = Ez z + Eth theta (condensed), weights W ------------------
         Ez_parts = [Sy, self._Dz]
         Eth_parts = [Yth - sel("r", nt), dUth]
         W_parts = [np.kron(np.eye(Np), self._Q), np.kron(np.eye(Nc), self._R)]
-        L_parts = [np.kron(np.eye(Np), _psd_sqrt(self._Q)), np.kron(np.eye(Nc), _psd_sqrt(self._R))]
+        L_parts = [
+            np.kron(np.eye(Np), _psd_sqrt(self._Q)),
+            np.kron(np.eye(Nc), _psd_sqrt(self._R)),
+        ]
         if self._S is not None:
             Ez_parts.append(Tz)
             Eth_parts.append(Uth - sel("ur", nt))
@@ -1068,90 +1182,143 @@ class LinearMPC:
         EzW = Ez.T @ W
         H = EzW @ Ez
         H = 0.5 * (H + H.T)
-        Fq = 2.0 * EzW @ Eth  # q_z = Fq theta
-        Lth = Lw @ Eth
-        Lth = Lth[np.any(Lth != 0, axis=1)]  # constant cost = ||Lth theta||^2
+        Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
+        Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
 
-        # constraint rows ---------------------------------------------------------
+        # output/state constraint rows on z (condensed) ---------------------------------
         con = self._con
         ncon = con["g"].size
         Gz = np.zeros((ncon, nz))
         Gth = np.zeros((ncon, nt))
+        Gx = np.zeros((ncon, n))  # coefficient on the state of the row's stage
         for gi, g in enumerate(self._groups):
             idx = np.flatnonzero(con["g"] == gi)
             K = g.stages.size
             dim = p if g.on == "y" else n
-            rows = (g.stages[:, None] - 1) * dim + np.arange(dim)[None, :]  # (K, dim)
+            rows = (g.stages[:, None] - 1) * dim + np.arange(dim)[None, :]
             Sz = (Sy if g.on == "y" else Sx)[rows.ravel()]
             St = (Yth if g.on == "y" else Xth)[rows.ravel()]
             GK = np.kron(np.eye(K), g.G)
             Gz[idx] = GK @ Sz
             Gth[idx] = GK @ St
+            Gx[idx] = np.tile(g.G @ C if g.on == "y" else g.G, (K, 1))
         rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
         self._rho_s = rho_s
-        self._soft2_slack = np.searchsorted(self._soft_c, self._soft2_c)
         self._gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
-
-        ns, nh, nlu = self._ns, self._nh, self._nlu
+        ns, nh, nlu, r0 = self._ns, self._nh, self._nlu, self._r0
         n_u = nz
         n_du = nz if self._has_du else 0
-        o = n_u + n_du
-        # OSQP A (dense image of the fixed pattern)
-        Ad = np.zeros((self._nA, self._nv))
-        Ad[:n_u, :nz] = self._Tz_c
-        if n_du:
-            Ad[n_u:o, :nz] = self._Dz
-        Ad[o:nh, :nz] = Gz[self._hard_c]
-        Ad[nh : nh + ns, :nz] = Gz[self._soft_c]
-        Ad[nh + ns : nlu, :nz] = Gz[self._soft2_c]
+        o = r0 + n_u + n_du
+        hard_c, soft_c, soft2_c = self._hard_c, self._soft_c, self._soft2_c
+        # semantic rows (everything except the dynamics) in condensed coordinates
+        self._Gsem = np.vstack(
+            [self._Tz_c] + ([self._Dz] if n_du else []) + [Gz[hard_c], Gz[soft_c], Gz[soft2_c]]
+        )
+        self._Csem = np.vstack(
+            [Uth[:nz]] + ([dUth] if n_du else []) + [Gth[hard_c], Gth[soft_c], Gth[soft2_c]]
+        )
+
+        # OSQP matrices ------------------------------------------------------------------
+        oz, oe, nv = self._oz, self._oe, self._nv
         sl = np.arange(ns)
-        Ad[nh + sl, nz + sl] = -1.0
-        if self._soft2_c.size:
-            j = np.searchsorted(self._soft_c, self._soft2_c)
-            Ad[nh + ns + np.arange(j.size), nz + j] = 1.0
-        Ad[nlu + sl, nz + sl] = 1.0
-        Pd = np.zeros((self._nv, self._nv))
-        Pd[:nz, :nz] = 2.0 * np.triu(H)
-        Pd[nz + sl, nz + sl] = 2.0 * self._gamma_s
+        Ad = np.zeros((self._nA, nv))
+        Pd = np.zeros((nv, nv))
+        if not sparse:
+            Ad[:nlu, :nz] = self._Gsem
+            Pd[:nz, :nz] = 2.0 * np.triu(H)
+            Hw_q = Fq  # q of the non-slack variables
+            Lth = Lth_c
+            Cth = self._Csem
+        else:
+            nxv = self._nxv
+            # dynamics: -x_{t+1} + A x_t + B u_t + (A x0 [t = 0] + d_t) = 0
+            Cth_dyn = np.zeros((nxv, nt))
+            for t in range(Np):
+                rows = slice(t * n, (t + 1) * n)
+                Ad[rows, t * n : (t + 1) * n] = -np.eye(n)
+                if t:
+                    Ad[rows, (t - 1) * n : t * n] = A
+                Ad[rows, oz : oz + nz] = B @ Tz[t * m : (t + 1) * m]
+                Cth_dyn[rows] = B @ Tu[t * m : (t + 1) * m] @ sel("up", nt) + Dth[rows]
+            Cth_dyn[:n] += A @ sel("x0", nt)
+            Ad[r0 : r0 + n_u, oz : oz + nz] = self._Tz_c
+            if n_du:
+                Ad[r0 + n_u : o, oz : oz + nz] = self._Dz
+            for rows_c, at in (
+                (hard_c, np.arange(o, nh)),
+                (soft_c, np.arange(nh, nh + ns)),
+                (soft2_c, np.arange(nh + ns, nlu)),
+            ):
+                for k, rr in zip(rows_c, at, strict=True):
+                    st = con["s"][k] - 1
+                    Ad[rr, st * n : (st + 1) * n] = Gx[k]
+            # cost: residuals Ew w + Eth_s theta in the variables w = (X, z)
+            Ew_parts = [np.hstack([Cb, np.zeros((Np * p, nz))])]
+            Ew_parts.append(np.hstack([np.zeros((nz, nxv)), self._Dz]))
+            Eth_s = [-sel("r", nt), dUth]
+            if self._S is not None:
+                Ew_parts.append(np.hstack([np.zeros((Np * m, nxv)), Tz]))
+                Eth_s.append(Uth - sel("ur", nt))
+            if self._P is not None:
+                last = np.zeros((n, nxv + nz))
+                last[:, nxv - n : nxv] = np.eye(n)
+                if self.terminal == "state":
+                    Ew_parts.append(last)
+                    Eth_s.append(-sel("xN", nt))
+                else:
+                    Ew_parts.append(C @ last)
+                    Eth_s.append(-sel("r", nt)[-p:])
+            Ew = np.vstack(Ew_parts)
+            EwW = Ew.T @ W
+            Hw = EwW @ Ew
+            Pd[:oe, :oe] = 2.0 * np.triu(0.5 * (Hw + Hw.T))
+            Hw_q = 2.0 * EwW @ np.vstack(Eth_s)
+            Lth = Lw @ np.vstack(Eth_s)
+            # theta-dependent offsets: dynamics, input and rate rows (the state and
+            # output rows act on the variables directly and have constant bounds)
+            Cth = np.vstack([Cth_dyn, Uth[:nz]] + ([dUth] if n_du else []))
+        Ad[nh + sl, oe + sl] = -1.0
+        if soft2_c.size:
+            Ad[nh + ns + np.arange(soft2_c.size), oe + self._soft2_slack] = 1.0
+        Ad[nlu + sl, oe + sl] = 1.0
+        Pd[oe + sl, oe + sl] = 2.0 * self._gamma_s
         if np.any(Ad[~self._Amask] != 0) or np.any(Pd[~self._Pmask] != 0):
             raise RuntimeError("internal error: QP entries outside the fixed sparsity pattern")
         self._A_dense, self._P_dense = Ad, Pd
 
-        # the per-step affine map v = M theta ----------------------------------------
-        # v = [q (nv) | constraint offsets (nlu) | U_c, X (, Y) offsets | cost factor]
-        Cth = np.zeros((nlu, nt))
-        Cth[:n_u] = Uth[:nz]
-        if n_du:
-            Cth[n_u:o] = dUth
-        Cth[o:nh] = Gth[self._hard_c]
-        Cth[nh : nh + ns] = Gth[self._soft_c]
-        Cth[nh + ns :] = Gth[self._soft2_c]
-        qth = np.zeros((self._nv, nt))
-        qth[:nz] = Fq
-        qth[nz:, 0] = rho_s  # column 0 of theta is the constant 1
+        # the per-step affine map v = M theta ---------------------------------------------
+        # v = [q (nv) | offsets of the rows self._off | trajectory offsets | cost factor]
+        qth = np.zeros((nv, nt))
+        qth[:oe] = Hw_q
+        qth[oe:, 0] = rho_s  # column 0 of theta is the constant 1
         self._y_is_x = p == n and np.array_equal(C, np.eye(n))
-        traj_th = [Uth[:nz], Xth] + ([] if self._y_is_x else [Yth])
-        Wz = np.vstack([self._Tz_c, Sx] + ([] if self._y_is_x else [Sy]))
+        if sparse:  # the states are variables
+            traj_th: list[np.ndarray] = []
+            Wz = np.zeros((0, nz))
+        else:
+            traj_th = [Uth[:nz], Xth] + ([] if self._y_is_x else [Yth])
+            Wz = np.vstack([self._Tz_c, Sx] + ([] if self._y_is_x else [Sy]))
+        Lth = Lth[np.any(Lth != 0, axis=1)]
         M = np.vstack([qth, Cth] + traj_th + [Lth])
         self._M_full = np.ascontiguousarray(M)
         self._M_nd = np.ascontiguousarray(M[:, : self._nb])
         self._v = np.empty(M.shape[0])
-        self._v_tmp = np.empty(M.shape[0])
-        nv = self._nv
         self._sl_q = slice(0, nv)
-        self._sl_c = slice(nv, nv + nlu)
-        nt0 = nv + nlu
-        self._sl_traj = slice(nt0, nt0 + Wz.shape[0])
-        self._sl_L = slice(nt0 + Wz.shape[0], M.shape[0])
+        n_off = self._off.stop - self._off.start
+        self._sl_c = slice(nv, nv + n_off)
+        t0 = nv + n_off
+        self._sl_traj = slice(t0, t0 + Wz.shape[0])
+        self._sl_L = slice(t0 + Wz.shape[0], M.shape[0])
         self._Wz = np.ascontiguousarray(Wz)
         self._Cpinv = np.linalg.pinv(C)
-        # kept for gain_unconstrained() and tests
-        self._H, self._Fq = H, Fq
+        # condensed data for gain_unconstrained(), the refinement and the fallback
+        self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
         self._Xth, self._Sx = Xth, Sx
+        self._Uth_c = Uth[:nz]
 
     def _q_init(self) -> np.ndarray:
         q = np.zeros(self._nv)
-        q[self._nz :] = 1.0
+        q[self._oe :] = self._rho_s
         return q
 
     def _push_matrices(self) -> None:
@@ -1164,6 +1331,12 @@ class LinearMPC:
         """Forget the warm start, the last plan and the last applied input."""
         self._theta = np.zeros(self._ntheta)
         self._theta[0] = 1.0
+        self._has_xN = "xN" in self._slots
+        self._has_ur = "ur" in self._slots
+        self._th_nb = self._theta[: self._nb]
+        self._th_up = self._theta[self._slots["up"]]
+        self._th_x0 = self._theta[self._slots["x0"]]
+        self._th_r = self._theta[self._slots["r"]].reshape(self.Np, self.p)
         self._d_dirty = 0  # 0: no d, 1: constant d written, 2: sequence D written
         self._ur_dirty = False
         self._ws_x: np.ndarray | None = None
@@ -1245,7 +1418,7 @@ class LinearMPC:
         except np.linalg.LinAlgError as exc:
             raise ValueError("the condensed Hessian is singular (increase R or S)") from exc
         K = self._Tz_c[:m] @ Z
-        if self.delta_u:
+        if self._zdu:  # u0 = u_prev + du0
             K[:, self._slots["up"]] += np.eye(m)
         s = self._slots
         g = UnconstrainedGain(
@@ -1258,6 +1431,7 @@ class LinearMPC:
             KxN=K[:, s["xN"]] if "xN" in s else None,
             Np=self.Np,
             p=self.p,
+            Cpinv=self._Cpinv.copy(),
         )
         return g
 
@@ -1303,15 +1477,15 @@ class LinearMPC:
                 f"{np.shape(x0)} and {np.shape(u_prev)}"
             )
         try:
-            th[s["x0"]] = x0
-            th[s["up"]] = u_prev
+            self._th_x0[...] = x0
+            self._th_up[...] = u_prev
         except ValueError:
             raise ValueError(
                 f"solve(): x0 must have shape ({self.n},) and u_prev ({self.m},), got "
                 f"{np.shape(x0)} and {np.shape(u_prev)}"
             ) from None
         try:
-            th[s["r"]].reshape(self.Np, self.p)[...] = y_ref
+            self._th_r[...] = y_ref
         except ValueError:
             if self.p == 1 and np.shape(y_ref) == (self.Np,):
                 th[s["r"]] = y_ref
@@ -1320,7 +1494,7 @@ class LinearMPC:
                     f"solve(): y_ref must have shape ({self.Np}, {self.p}) or ({self.p},), "
                     f"got {np.shape(y_ref)}"
                 ) from None
-        if "xN" in s:
+        if self._has_xN:
             if x_ref_N is None:
                 np.dot(self._Cpinv, th[s["r"]][-self.p :], out=th[s["xN"]])
             else:
@@ -1348,7 +1522,7 @@ class LinearMPC:
             th[s["d"]] = 0.0
             th[s["D"]] = 0.0
             self._d_dirty = 0
-        if "ur" in s:
+        if self._has_ur:
             if u_ref is not None:
                 try:
                     th[s["ur"]].reshape(self.Np, self.m)[...] = u_ref
@@ -1362,8 +1536,8 @@ class LinearMPC:
                 self._ur_dirty = False
 
         v = self._v
-        tv = th[: self._nb] if M is self._M_nd else th
-        up = th[s["up"]]
+        tv = self._th_nb if M is self._M_nd else th
+        up = self._th_up
         if not math.isfinite(np.dot(tv, tv)):  # NaN/inf anywhere in the data
             v.fill(np.nan)
             return self._fallback(t_start, "invalid input", _STATUS_INVALID_INPUT, up)
@@ -1379,29 +1553,54 @@ class LinearMPC:
                 if upl[i] < umin_l[i] or upl[i] > umax_l[i]:
                     relax = True
                     break
+        changed = False
         if override or relax:
             ok = self._set_bounds(up, relax, y_min, y_max, h_y, h_x)
             if not ok:
                 return self._fallback(t_start, "invalid input", _STATUS_INVALID_INPUT, up)
+            changed = True
         elif self._bounds_dirty:
-            self._Lb[:] = self._Lb0
-            self._Ub[:] = self._Ub0
+            self._LUb[...] = self._LUb0
             self._bounds_dirty = False
+            changed = True
+        if changed and self._off.stop < self._nlu:  # rows with constant offsets (sparse)
+            k = self._off.stop
+            self._LU[:, k : self._nlu] = self._LUb[:, k:]
         c = v[self._sl_c]
-        nlu = self._nlu
-        np.subtract(self._Lb, c, out=self._l[:nlu])
-        np.subtract(self._Ub, c, out=self._u[:nlu])
+        np.subtract(self._Lb_off, c, out=self._l_off)  # l = lower bounds - offsets
+        np.subtract(self._Ub_off, c, out=self._u_off)
 
         # OSQP -----------------------------------------------------------------------
         be = self._backend
+        raw = be.raw
         try:
-            rc = be.update_vec(v[self._sl_q], self._l, self._u)
-            if rc:
-                return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
-            if self._ws_x is not None:
-                be.warm_start(self._ws_x, self._ws_y)
-            x, y, stats = be.solve()
-            status_val, status, iters, solve_time, obj_val, _ = stats
+            ws_x = self._ws_x
+            if raw is not None and not be.polishing:
+                # compiled solver object, inlined: the wrapper costs more than small solves
+                rc = raw.update_data_vec(v[self._sl_q], self._l, self._u)
+                if rc:
+                    return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
+                if ws_x is not None:
+                    raw.warm_start(ws_x, self._ws_y)
+                raw.solve()
+                sol = raw.solution
+                x = sol.x
+                y = sol.y
+                info = raw.info
+                status_val = info.status_val
+                iters = info.iter
+                solve_time = info.solve_time
+                obj_val = info.obj_val
+                status = be._status_names.get(status_val) or be.status_name(status_val, info)
+                stats = (status_val, status, iters, solve_time, obj_val, 0)
+            else:
+                rc = be.update_vec(v[self._sl_q], self._l, self._u)
+                if rc:
+                    return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
+                if ws_x is not None:
+                    be.warm_start(ws_x, self._ws_y)
+                x, y, stats = be.solve()
+                status_val, status, iters, solve_time, obj_val, _ = stats
             if status_val != _SOLVED and self._rescue_on:
                 x, y, stats = self._rescue(x, y, stats)
                 status_val, status, iters, solve_time, obj_val, _ = stats
@@ -1409,24 +1608,45 @@ class LinearMPC:
             return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
         if status_val != _SOLVED and status_val != _SOLVED_INACCURATE:
             return self._fallback(t_start, status, status_val, up, iters, solve_time)
-        if not math.isfinite(np.dot(x, x)):
-            return self._fallback(t_start, status, status_val, up, iters, solve_time)
 
         # result ---------------------------------------------------------------------
-        nz = self._nz
-        z = x[:nz]
-        traj = np.dot(self._Wz, z)
-        traj += v[self._sl_traj]
         nc_m, npn = self._ncm, self._npn
-        U = traj[:nc_m].reshape(self.Nc, self.m)
-        X = traj[nc_m : nc_m + npn].reshape(self.Np, self.n)
-        Y = X if self._y_is_x else traj[nc_m + npn :].reshape(self.Np, self.p)
+        if self._sparse:  # states and (absolute) inputs are variables
+            U = x[self._oz : self._oe].reshape(self.Nc, self.m)
+            X = x[:npn].reshape(self.Np, self.n)
+            Y = X if self._y_is_x else X @ self._C.T
+        else:
+            traj = np.dot(self._Wz, x[: self._nz])
+            traj += v[self._sl_traj]
+            U = traj[:nc_m].reshape(self.Nc, self.m)
+            X = traj[nc_m : nc_m + npn].reshape(self.Np, self.n)
+            Y = X if self._y_is_x else traj[nc_m + npn :].reshape(self.Np, self.p)
         u0 = U[0]
         # remove the solver's O(eps) constraint violation: u0 exactly inside both boxes
-        self._clip_to_window(u0, upl)
+        if self.m == 1:  # the common single-input case without the helper call
+            a = upl[0]
+            v0 = float(u0[0])
+            rlo = a + self._dumin_l[0]
+            rhi = a + self._dumax_l[0]
+            lo = min(max(self._umin_l[0], rlo), rhi)
+            hi = max(min(self._umax_l[0], rhi), rlo)
+            if v0 < lo:
+                u0[0] = lo
+            elif v0 > hi:
+                u0[0] = hi
+            elif v0 != v0:  # NaN
+                return self._fallback(t_start, status, status_val, up, iters, solve_time)
+        elif not self._clip_to_window(u0, upl):
+            return self._fallback(t_start, status, status_val, up, iters, solve_time)
         Lv = v[self._sl_L]
         cost = obj_val + float(np.dot(Lv, Lv))
-        slack_max = max(0.0, float(np.maximum.reduce(x[nz:]))) if self._ns else 0.0
+        ns = self._ns
+        if ns == 0:
+            slack_max = 0.0
+        elif ns <= 64:  # python max beats a ufunc call for short vectors
+            slack_max = max(0.0, max(x[self._oe :].tolist()))
+        else:
+            slack_max = max(0.0, float(x[self._oe :].max()))
 
         # warm start for the next call: shifted primal and dual
         if self._ws_mode == "shift":
@@ -1440,19 +1660,19 @@ class LinearMPC:
         self._plan_age = 0
         self._u_last = u0
         return MPCSolution(
-            u0=u0,
-            du0=u0 - up,
-            U=U,
-            X=X,
-            Y=Y,
-            status=status,
-            status_val=status_val,
-            iterations=iters,
-            solve_time_s=solve_time,
-            overhead_s=time.perf_counter() - t_start - solve_time,
-            slack_max=slack_max,
-            fallback=False,
-            cost=cost,
+            u0,
+            u0 - up,
+            U,
+            X,
+            Y,
+            status,
+            status_val,
+            iters,
+            solve_time,
+            time.perf_counter() - t_start - solve_time,
+            slack_max,
+            False,
+            cost,
         )
 
     # ------------------------------------------------------------------ helpers
@@ -1467,8 +1687,7 @@ class LinearMPC:
     ) -> bool:
         """Write per-call bounds into the working bound vectors; False if they contain NaN."""
         Lb, Ub = self._Lb, self._Ub
-        Lb[:] = self._Lb0
-        Ub[:] = self._Ub0
+        self._LUb[...] = self._LUb0
         self._bounds_dirty = True
         if relax:
             # reachable input bounds when u_prev lies outside [u_min, u_max]
@@ -1476,8 +1695,9 @@ class LinearMPC:
             with np.errstate(invalid="ignore"):
                 lo = np.minimum(self._umin_t, up[None, :] + self._k_dumax)
                 hi = np.maximum(self._umax_t, up[None, :] + self._k_dumin)
-            Lb[:nu] = np.clip(np.nan_to_num(lo, nan=-_BIG), -_BIG, _BIG).ravel()
-            Ub[:nu] = np.clip(np.nan_to_num(hi, nan=_BIG), -_BIG, _BIG).ravel()
+            r0 = self._r0
+            Lb[r0 : r0 + nu] = np.clip(np.nan_to_num(lo, nan=-_BIG), -_BIG, _BIG).ravel()
+            Ub[r0 : r0 + nu] = np.clip(np.nan_to_num(hi, nan=_BIG), -_BIG, _BIG).ravel()
         for name, val, side in (
             ("y", y_min, "lo"),
             ("y", y_max, "hi"),
@@ -1488,8 +1708,13 @@ class LinearMPC:
                 continue
             label = {"lo": "y_min", "hi": "y_max"}[side] if name == "y" else "h" + name[1:]
             g = next((g for g in self._groups if g.name == name), None)
-            dim = _group_dim_name(name, self.n, self.p)
             arr = np.asarray(val, dtype=float)
+            if g is not None:
+                dim = g.dim_full
+            elif name == "y":
+                dim = self.p
+            else:
+                dim = arr.shape[-1] if arr.ndim else 1
             try:
                 arr = np.broadcast_to(arr, (self.Np, dim))
             except ValueError:
@@ -1562,15 +1787,12 @@ class LinearMPC:
             prev = ui
         u0 = U[0].copy()
         # prediction with the fallback plan (NaN if the data were not finite)
-        v = self._v
-        if self.delta_u:
+        if self._zdu:
             z = np.diff(np.vstack([up[None, :], U]), axis=0).ravel()
         else:
             z = U.ravel()
-        traj = self._Wz @ z + v[self._sl_traj]
-        nc_m, npn = Nc * m, self.Np * self.n
-        X = traj[nc_m : nc_m + npn].reshape(self.Np, self.n)
-        Y = X if self._y_is_x else traj[nc_m + npn :].reshape(self.Np, self.p)
+        self._theta[self._slots["up"]] = up
+        X, Y, slack_max, cost = self._evaluate_plan(z)
         # next warm start: shift the previous one again (never reuse a failed iterate)
         if self._ws_x is not None:
             xb = self._xbuf
@@ -1578,7 +1800,6 @@ class LinearMPC:
             self._ws_x = xb[self._xshift]
             self._ws_y = self._ws_y[self._yshift]
         self._u_last = u0
-        slack_max, cost = self._plan_violation_cost(z)
         return MPCSolution(
             u0=u0,
             du0=u0 - up,
@@ -1595,8 +1816,11 @@ class LinearMPC:
             cost=cost,
         )
 
-    def _clip_to_window(self, u0: np.ndarray, upl: list[float]) -> None:
-        """In-place clip of ``u0`` to :meth:`_input_window` (python floats: m is small)."""
+    def _clip_to_window(self, u0: np.ndarray, upl: list[float]) -> bool:
+        """In-place clip of ``u0`` to :meth:`_input_window`; False if ``u0`` is not finite.
+
+        Python floats: ``m`` is small and numpy calls cost more than the arithmetic.
+        """
         umin, umax, dmin, dmax = self._umin_l, self._umax_l, self._dumin_l, self._dumax_l
         u0l = u0.tolist()
         for i in range(self.m):
@@ -1614,6 +1838,9 @@ class LinearMPC:
                 u0[i] = lo
             elif val > hi:
                 u0[i] = hi
+            elif val != val:  # NaN
+                return False
+        return True
 
     def _rescue(self, x: np.ndarray, y: np.ndarray, stats: _Stats) -> tuple[Any, Any, _Stats]:
         """Recover from a solve that did not meet the tolerances.
@@ -1667,12 +1894,17 @@ class LinearMPC:
         only if every KKT condition of the full QP holds.  Returns ``(w, y, obj)``
         in OSQP's variables or ``None``.
         """
-        nz, nh, ns, nlu = self._nz, self._nh, self._ns, self._nlu
-        Ad = self._A_dense
-        lb, ub = self._l, self._u
-        Gh = Ad[:nh, :nz]
+        nz, ns, r0 = self._nz, self._ns, self._r0
+        nh, nlu = self._nh - r0, self._nlu - r0  # semantic row counts (no dynamics rows)
+        th = self._theta
+        c_sem = self._Csem @ th  # condensed offsets of the semantic rows
+        lb = np.clip(self._Lb[r0:] - c_sem, -_BIG, _BIG)
+        ub = np.clip(self._Ub[r0:] - c_sem, -_BIG, _BIG)
+        ys = y[r0:]  # duals of the semantic rows (and of the eps >= 0 rows)
+        Gsem = self._Gsem
+        Gh = Gsem[:nh]
         lo_h, hi_h = lb[:nh], ub[:nh]
-        Gs = Ad[nh : nh + ns, :nz]
+        Gs = Gsem[nh : nh + ns]
         jl = self._soft2_slack
         U_s = ub[nh : nh + ns]
         L_s = np.full(ns, -_BIG)
@@ -1680,23 +1912,23 @@ class LinearMPC:
         rho = self._rho_s
         g2 = 2.0 * self._gamma_s
         H2 = 2.0 * self._H
-        q = self._v[:nz]
+        q = self._Fq @ th
         eq_h = (hi_h - lo_h) <= 1e-12 * (1.0 + np.abs(hi_h))
 
         # initial active set from the ADMM iterate (OSQP's polishing rule)
-        z = x[:nz]
+        z = x[self._oz : self._oe]
         ah = Gh @ z
-        yh = y[:nh]
+        yh = ys[:nh]
         st_h = np.where((hi_h - ah) < yh, 1, np.where((ah - lo_h) < -yh, -1, 0))
         st_h[eq_h] = 1
         st_s = np.zeros(ns, dtype=np.int64)
         if ns:
-            eps = x[nz:]
-            ysu = y[nh : nh + ns]
+            eps = x[self._oe :]
+            ysu = ys[nh : nh + ns]
             ysl = np.zeros(ns)
-            ysl[jl] = y[nh + ns : nlu]
+            ysl[jl] = ys[nh + ns : nlu]
             gs = Gs @ z
-            zero = eps < -y[nlu:]
+            zero = eps < -ys[nlu:]
             st_s = np.where(ysu >= -ysl, 1, -1)
             st_s = np.where(
                 zero, np.where(ysu >= -ysl, (U_s - gs) < ysu, (gs - L_s) < -ysl) * st_s, 2 * st_s
@@ -1785,15 +2017,21 @@ class LinearMPC:
             if np.any(v_u[st_s == 2] < -tol_p) or np.any(v_l[st_s == -2] < -tol_p):
                 return None
         eps_r = np.where(st_s == 2, v_u, np.where(st_s == -2, v_l, 0.0)).clip(min=0.0)
-        w = np.concatenate([z, eps_r])
+        parts = [z, eps_r]
+        if self._sparse:
+            parts.insert(0, self._Xth @ th + self._Sx @ z)
+        w = np.concatenate(parts)
         # OSQP-convention duals, useful as the next warm start
-        yw = np.zeros(self._nA)
-        yw[:nh] = lam_h
+        yw = np.array(y, dtype=float)
+        yw[r0 : r0 + nh] = lam_h
         if ns:
-            yw[nh : nh + ns] = np.maximum(mu, 0.0)
-            yw[nh + ns : nlu] = np.minimum(mu, 0.0)[jl]
-            yw[nlu:] = -rho - g2 * eps_r + np.maximum(mu, 0.0) - np.minimum(mu, 0.0)
-        obj = float(z @ self._H @ z + q @ z + rho @ eps_r + self._gamma_s @ eps_r**2)
+            yw[r0 + nh : r0 + nh + ns] = np.maximum(mu, 0.0)
+            yw[r0 + nh + ns : r0 + nlu] = np.minimum(mu, 0.0)[jl]
+            yw[r0 + nlu :] = -rho - g2 * eps_r + np.maximum(mu, 0.0) - np.minimum(mu, 0.0)
+        # OSQP objective 1/2 w'Pw + q'w (P stored as its upper triangle)
+        Pd = self._P_dense
+        qv = self._v[self._sl_q]
+        obj = float(w @ (Pd @ w) - 0.5 * (np.diagonal(Pd) * w) @ w + qv @ w)
         return w, yw, obj
 
     def _input_window(self, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1808,41 +2046,45 @@ class LinearMPC:
         hi = np.maximum(np.minimum(self._umax, r_hi), r_lo)
         return lo, hi
 
-    def _plan_violation_cost(self, z: np.ndarray) -> tuple[float, float]:
-        """Soft-constraint violation and cost of a plan ``z`` (NaN if the data were not finite)."""
-        v = self._v
-        nz, nh, ns, nlu = self._nz, self._nh, self._ns, self._nlu
+    def _evaluate_plan(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Prediction, soft violation and cost of a plan ``z`` from the condensed model.
+
+        Used for fallback plans; NaN where the data of this call were not finite.
+        """
+        th = self._theta
+        ns, r0 = self._ns, self._r0
+        nh, nlu = self._nh - r0, self._nlu - r0
         with np.errstate(invalid="ignore", over="ignore"):
-            g = self._A_dense[:nlu, :nz] @ z + v[self._sl_c]
+            X = (self._Xth @ th + self._Sx @ z).reshape(self.Np, self.n)
+            Y = X if self._y_is_x else X @ self._C.T
+            g = self._Gsem @ z + self._Csem @ th
             eps = np.zeros(ns)
             if ns:
-                eps = np.maximum(eps, g[nh : nh + ns] - self._Ub[nh : nh + ns])
-                j = np.searchsorted(self._soft_c, self._soft2_c)
-                np.maximum.at(eps, j, self._Lb[nh + ns : nlu] - g[nh + ns : nlu])
-            rho = self._rho_s
-            Lv = v[self._sl_L]
+                eps = np.maximum(eps, g[nh : nh + ns] - self._Ub[r0 + nh : r0 + nh + ns])
+                np.maximum.at(eps, self._soft2_slack, self._Lb[r0 + nh + ns :] - g[nh + ns : nlu])
+            Lc = self._Lth_c @ th
             cost = float(
-                z @ self._H @ z + v[:nz] @ z + Lv @ Lv + rho @ eps + self._gamma_s @ eps**2
+                z @ self._H @ z
+                + (self._Fq @ th) @ z
+                + Lc @ Lc
+                + self._rho_s @ eps
+                + self._gamma_s @ eps**2
             )
             slack_max = float(eps.max()) if ns else 0.0
         if not math.isfinite(cost):
             cost = float("nan")
-        return slack_max, cost
+        return X, Y, slack_max, cost
 
     # ------------------------------------------------------------------ info
     @property
     def n_variables(self) -> int:
-        """Number of QP decision variables (inputs/increments + slacks)."""
+        """Number of QP decision variables (states in the sparse form, inputs, slacks)."""
         return self._nv
 
     @property
     def n_constraints(self) -> int:
         """Number of QP constraint rows."""
         return self._nA
-
-
-def _group_dim_name(name: str, n: int, p: int) -> int:
-    return p if name in ("y", "H_y") else n
 
 
 def _check_penalty_arg(soft_penalty: Any) -> None:

@@ -1,0 +1,293 @@
+"""Tuner benchmarks: evaluation throughput, persistence overhead, convergence, 004 run.
+
+Run (not a test; numbers go in the closing notes)::
+
+    python benchmarks/bench_tuners.py speed         # evaluations/s serial vs processes
+    python benchmarks/bench_tuners.py persistence   # Optuna/SQLite cost per evaluation
+    python benchmarks/bench_tuners.py convergence   # MOWOA/MOPSO vs NSGA-II on ZDT
+    python benchmarks/bench_tuners.py tune004       # 20 x 10 tuning run on paper 004
+    python benchmarks/bench_tuners.py all
+
+``speed`` evaluates the same points on ``--env`` (default the 004 Fuzzy-PID id, one
+scenario seed) with the serial backend and with a ``--workers`` process pool (the pool
+start-up is timed separately). ``persistence`` times what storing costs per finished
+evaluation (one Optuna trial) and per generation (the algorithm checkpoint) on a
+problem whose evaluation is free (ZDT1 with 7 variables, like 004's DMC; Optuna writes
+one row per parameter, so the cost grows with their number), for in-memory Optuna and
+an SQLite file.
+``convergence`` compares hypervolume (reference point 1.1, 1.1) and IGD at equal
+evaluations (pop 40 x 100 generations) over seeds, including a shifted ZDT1 whose
+Pareto set is not on the lower bound. ``tune004`` tunes ``--env004`` (default the DMC
+id of paper 004 if registered, else its Fuzzy-PID id) with MOWOA at a reduced budget
+(20 x 10, two disturbed scenario seeds, equal target weights, 004's five objectives
+normalised by the tolerance values ``TOLERANCES``, constraints ``CONSTRAINTS``) and
+compares the selected solution with the defaults on held-out scenario seeds, by the
+Tchebycheff value under the target weights and the run's normalisation.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+DISTURBANCE = {"disturbance": {"mass_factor_range": [0.9, 1.15], "random_bound_mps2": 0.03}}
+#: 004's "tolerance values" (lower, upper) of ITAE [m], |stop error| [m], time error [s],
+#: mean |jerk| [m/s^3], energy [kWh] -- engineering scales, not given by 004: ITAE of the
+#: order of the defaults' (~300-600 m), a +-0.5 m stopping window (paper 001), 1 s of
+#: punctuality, 0.1 m/s^3 mean jerk, 10 % of a run's ~25 kWh
+TOLERANCES = ([0.0, 0.0, 0.0, 0.0, 0.0], [1000.0, 0.5, 1.0, 0.1, 2.5])
+#: safety (no overspeed) plus operational acceptability: worst seed within 5 s of the
+#: schedule and 2 m of the stopping point (a stalled or overshooting run is no solution)
+CONSTRAINTS = {"max_overspeed_mps": 0.0, "time_error_s": 5.0, "E_p_m": 2.0}
+
+
+def _load() -> str:
+    try:
+        return " ".join(f"{v:.2f}" for v in os.getloadavg())
+    except OSError:
+        return "n/a"
+
+
+# ---------------------------------------------------------------------- speed
+def bench_speed(env_id: str, n: int, workers: int) -> dict:
+    from tuners.backends import Evaluations, ProcessBackend, SerialBackend
+    from tuners.problem import EnvTuningProblem
+
+    prob = EnvTuningProblem(env_id, seeds=[0])
+    rng = np.random.default_rng(0)
+    X = np.vstack([prob.default_x(), rng.uniform(-1, 1, (n - 1, prob.n_var))])
+    t0 = time.perf_counter()
+    Evaluations(SerialBackend()).evaluate(prob, X)
+    t_serial = time.perf_counter() - t0
+    be = ProcessBackend(workers=workers)
+    try:
+        t0 = time.perf_counter()
+        warm = rng.uniform(-1, 1, (workers, prob.n_var))
+        Evaluations(be).evaluate(prob, warm)  # spawns the pool (imports in each worker)
+        t_spawn = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        Evaluations(be).evaluate(prob, X)
+        t_proc = time.perf_counter() - t0
+    finally:
+        be.close()
+    out = {
+        "env": env_id,
+        "evaluations": n,
+        "workers": workers,
+        "cores": os.cpu_count(),
+        "serial_evals_per_s": n / t_serial,
+        "processes_evals_per_s": n / t_proc,
+        "speedup": t_serial / t_proc,
+        "pool_startup_s": t_spawn,
+        "loadavg": _load(),
+    }
+    print(
+        f"[speed] {env_id}: {n} evaluations, serial {out['serial_evals_per_s']:.2f}/s, "
+        f"{workers} processes {out['processes_evals_per_s']:.2f}/s -> speed-up "
+        f"{out['speedup']:.2f}x (pool start-up {t_spawn:.1f} s; load {out['loadavg']})"
+    )
+    return out
+
+
+# ---------------------------------------------------------------- persistence
+def bench_persistence(pop: int, iters: int, n_var: int = 7) -> dict:
+    import optuna
+    from pymoo.problems import get_problem
+
+    from tuners.problem import PymooTaskProblem
+    from tuners.run import tune
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    out: dict = {"pop": pop, "iters": iters, "n_var": n_var, "loadavg": _load()}
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, storage in (("memory", None), ("sqlite", f"sqlite:///{tmp}/bench.db")):
+            prob = PymooTaskProblem(get_problem("zdt1", n_var=n_var))
+            t0 = time.perf_counter()
+            r = tune(prob, "mowoa", pop, iters, backend="serial", storage=storage, study=label)
+            wall = time.perf_counter() - t0
+            st = r.stats
+            out[label] = {
+                "evaluations": st.run,
+                "store_ms_per_eval": 1e3 * st.store_time_s / max(st.run, 1),
+                "checkpoint_ms_per_gen": 1e3 * st.checkpoint_time_s / iters,
+                "run_wall_s": wall,
+            }
+            print(
+                f"[persistence] {label:6s}: {n_var} parameters, {st.run} evaluations, "
+                f"{out[label]['store_ms_per_eval']:.1f} ms per stored evaluation, "
+                f"{out[label]['checkpoint_ms_per_gen']:.1f} ms per checkpoint (generation), "
+                f"run {wall:.1f} s"
+            )
+    return out
+
+
+# ---------------------------------------------------------------- convergence
+def _shifted_zdt1():
+    from pymoo.core.problem import Problem
+    from pymoo.problems import get_problem
+
+    class ShiftedZDT1(Problem):
+        """ZDT1 with the Pareto set at x_2..30 = 0.35 instead of on the lower bound."""
+
+        def __init__(self) -> None:
+            self.base = get_problem("zdt1")
+            super().__init__(n_var=30, n_obj=2, xl=0.0, xu=1.0)
+
+        def _evaluate(self, X, out, *args, **kwargs):
+            Y = X.copy()
+            Y[:, 1:] = np.abs(X[:, 1:] - 0.35) / 0.65
+            out["F"] = self.base.evaluate(Y)
+
+        def _calc_pareto_front(self, *args, **kwargs):
+            return self.base.pareto_front()
+
+    return ShiftedZDT1()
+
+
+def bench_convergence(seeds: list[int], pop: int, gens: int) -> dict:
+    from pymoo.algorithms.moo.nsga2 import NSGA2
+    from pymoo.indicators.hv import HV
+    from pymoo.indicators.igd import IGD
+    from pymoo.optimize import minimize
+    from pymoo.problems import get_problem
+
+    from tuners.mowoa import MOWOA
+    from tuners.pso import MOPSO
+
+    problems = {"zdt1": get_problem("zdt1"), "zdt2": get_problem("zdt2")}
+    problems["zdt1-shifted"] = _shifted_zdt1()
+    algos = {
+        "mowoa": lambda: MOWOA(pop_size=pop),
+        "mopso": lambda: MOPSO(pop_size=pop),
+        "nsga2": lambda: NSGA2(pop_size=pop),
+    }
+    hv = HV(ref_point=[1.1, 1.1])
+    out: dict = {"pop": pop, "generations": gens, "seeds": seeds}
+    for pname, p in problems.items():
+        igd = IGD(p.pareto_front())
+        for aname, make in algos.items():
+            vals = [minimize(p, make(), ("n_gen", gens), seed=s).F for s in seeds]
+            h = [float(hv(F)) for F in vals]
+            d = [float(igd(F)) for F in vals]
+            out[f"{pname}/{aname}"] = {"hv": h, "igd": d}
+            print(
+                f"[convergence] {pname:13s} {aname:6s} HV mean {np.mean(h):.4f} "
+                f"(min {np.min(h):.4f})  IGD mean {np.mean(d):.4f}   "
+                f"[{pop} x {gens} evaluations, seeds {seeds}]"
+            )
+    return out
+
+
+# -------------------------------------------------------------------- tune004
+def bench_tune004(env_id: str, pop: int, iters: int, workers: int, seeds, holdout, db) -> dict:
+    import optuna
+
+    from tuners.run import tune
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = f"bench-{env_id.split('/')[-1]}-mowoa-{pop}x{iters}-tol"
+    t0 = time.perf_counter()
+    r = tune(
+        env_id,
+        "mowoa",
+        pop,
+        iters,
+        workers=workers,
+        backend="processes",
+        storage=db,
+        study=study,
+        resume=True,
+        seeds=seeds,
+        config=DISTURBANCE,
+        constraints=CONSTRAINTS,
+        f_bounds=TOLERANCES,
+        progress=True,
+    )
+    wall = time.perf_counter() - t0
+    ho = r.compare_on_seeds(holdout)
+    d, s = ho.set_index("point").loc["defaults"], ho.set_index("point").loc["selected"]
+    change = {o: 100.0 * (s[o] - d[o]) / abs(d[o]) if d[o] else float("nan") for o in r.objectives}
+    out = {
+        "env": env_id,
+        "pop": pop,
+        "iters": iters,
+        "seeds": list(seeds),
+        "holdout_seeds": list(holdout),
+        "evaluations_run": r.stats.run,
+        "cached": r.stats.cached,
+        "wall_s": wall,
+        "pareto_size": len(r.pareto),
+        "selected_params": r.selected_params,
+        "tchebycheff_defaults": float(d["tchebycheff"]),
+        "tchebycheff_selected": float(s["tchebycheff"]),
+        "objective_change_pct": change,
+        "storage": db,
+        "study": study,
+        "tolerances": TOLERANCES,
+        "constraints": CONSTRAINTS,
+    }
+    print(f"[tune004] {env_id}: {r.stats.run} evaluations in {wall:.0f} s, Pareto {len(r.pareto)}")
+    print(ho.to_string(index=False))
+    print(
+        f"[tune004] held-out seeds {list(holdout)}: Tchebycheff defaults "
+        f"{out['tchebycheff_defaults']:.4f} -> selected {out['tchebycheff_selected']:.4f}; "
+        + ", ".join(f"{k} {v:+.1f} %" for k, v in change.items())
+    )
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("part", choices=["speed", "persistence", "convergence", "tune004", "all"])
+    ap.add_argument("--env", default="TrainEnvs/Urban004FuzzyPID-v0")
+    ap.add_argument("--n", type=int, default=12, help="evaluations of the speed benchmark")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
+    ap.add_argument("--n-var", type=int, default=7, help="variables of the persistence problem")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    ap.add_argument("--env004", default=None)
+    ap.add_argument("--pop004", type=int, default=20)
+    ap.add_argument("--iters004", type=int, default=10)
+    ap.add_argument("--train-seeds", type=int, nargs="+", default=[0, 1])
+    ap.add_argument("--holdout", type=int, nargs="+", default=[100, 101, 102, 103, 104])
+    ap.add_argument("--db", default="sqlite:///out/bench_tuners.db")
+    ap.add_argument("--json", default=None, help="write the results to this JSON file")
+    args = ap.parse_args()
+    res: dict = {}
+    if args.part in ("speed", "all"):
+        res["speed"] = bench_speed(args.env, args.n, args.workers)
+    if args.part in ("persistence", "all"):
+        res["persistence"] = bench_persistence(20, 10, args.n_var)
+    if args.part in ("convergence", "all"):
+        res["convergence"] = bench_convergence(args.seeds, 40, 100)
+    if args.part in ("tune004", "all"):
+        import train_envs  # noqa: F401
+        from train_envs.envs import registered_ids
+
+        env004 = args.env004 or (
+            "TrainEnvs/Urban004-v0"
+            if "TrainEnvs/Urban004-v0" in registered_ids()
+            else "TrainEnvs/Urban004FuzzyPID-v0"
+        )
+        if args.db.startswith("sqlite:///"):
+            Path(args.db[len("sqlite:///") :]).parent.mkdir(parents=True, exist_ok=True)
+        res["tune004"] = bench_tune004(
+            env004,
+            args.pop004,
+            args.iters004,
+            args.workers,
+            args.train_seeds,
+            args.holdout,
+            args.db,
+        )
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=2, default=str))
+
+
+if __name__ == "__main__":
+    main()

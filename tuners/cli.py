@@ -1,0 +1,276 @@
+"""``train-envs tune``: the tuners' command line (wired into ``train_envs.cli``).
+
+Usage::
+
+    train-envs tune --env TrainEnvs/Urban004-v0 --algo mowoa --pop 40 --iters 100 \\
+        --workers 8 --storage sqlite:///runs.db --study urban004-mowoa [--resume]
+    train-envs tune show urban004-mowoa --storage sqlite:///runs.db [--out results/]
+
+``add_tune_parser(subparsers)`` adds the subcommand to an argparse subparsers object and
+sets ``func`` (an ``args -> int`` exit code) on the parsed namespace.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["add_tune_parser", "cmd_show", "cmd_tune", "write_outputs"]
+
+DEFAULT_STORAGE = "sqlite:///tuning.db"  # = tuners.run.DEFAULT_STORAGE (no heavy import)
+
+
+def _config(text: str | None) -> dict[str, Any] | None:
+    if not text:
+        return None
+    if text.startswith("@"):
+        text = Path(text[1:]).read_text()
+    try:
+        cfg = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--config must be JSON (or @file.json): {exc}") from exc
+    if not isinstance(cfg, dict):
+        raise ValueError("--config must be a JSON object")
+    return cfg
+
+
+def _seeds(items: list[str] | None) -> list[int] | None:
+    """Seeds as ``0 1 2``, ``0,1,2`` or ranges ``0-4``."""
+    if not items:
+        return None
+    out: list[int] = []
+    for item in items:
+        for part in str(item).split(","):
+            part = part.strip()
+            if not part:
+                continue
+            if "-" in part:
+                lo, hi = part.split("-", 1)
+                out.extend(range(int(lo), int(hi) + 1))
+            else:
+                out.append(int(part))
+    return out
+
+
+def _constraints(items: list[str] | None) -> dict[str, float] | None:
+    if not items:
+        return None
+    out: dict[str, float] = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"--constraint expects METRIC=LIMIT, got {item!r}")
+        k, v = item.split("=", 1)
+        out[k.strip()] = float(v)
+    return out
+
+
+def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add ``tune`` (and ``tune show``) to ``subparsers``; returns the ``tune`` parser."""
+    p = subparsers.add_parser(
+        "tune",
+        help="tune an env's controller parameters (MOWOA, PSO, NSGA-II, MOEA/D)",
+        description="Search the inner controller's parameters of an env id over "
+        "closed-loop episodes; every evaluation is stored in an Optuna study and the "
+        "run can be resumed. `train-envs tune show <study>` prints a stored run.",
+    )
+    p.add_argument("--env", help="registered env id, e.g. TrainEnvs/Urban004FuzzyPID-v0")
+    p.add_argument(
+        "--algo",
+        default="mowoa",
+        choices=["mowoa", "pso", "mopso", "nsga2", "moead"],
+        help="search algorithm (default mowoa)",
+    )
+    p.add_argument("--pop", type=int, default=40, help="population size (default 40)")
+    p.add_argument(
+        "--iters", type=int, default=100, help="generations incl. the initial one (default 100)"
+    )
+    p.add_argument(
+        "--workers", type=int, default=None, help="parallel workers (default: all cores)"
+    )
+    p.add_argument(
+        "--backend",
+        default="processes",
+        choices=["serial", "processes", "dask"],
+        help="where evaluations run (default processes)",
+    )
+    p.add_argument("--dask-address", default=None, help="Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument(
+        "--storage", default=DEFAULT_STORAGE, help=f"Optuna storage URL (default {DEFAULT_STORAGE})"
+    )
+    p.add_argument("--study", default=None, help="study name (default <env>-<algo>-s<seed>)")
+    p.add_argument("--resume", action="store_true", help="continue the (killed) study")
+    p.add_argument(
+        "--seeds", nargs="+", default=["0"], help="scenario seeds per evaluation: 0 1 2, 0-4"
+    )
+    p.add_argument(
+        "--objectives",
+        nargs="+",
+        default=None,
+        help="itae stop time comfort energy (default: those the scenario has) or metric names",
+    )
+    p.add_argument(
+        "--target-weights",
+        nargs="+",
+        type=float,
+        default=None,
+        help="weights of the final pick, one per objective (default: equal)",
+    )
+    p.add_argument(
+        "--f-lower",
+        nargs="+",
+        type=float,
+        default=None,
+        help="lower tolerance bound per objective (with --f-upper: Tchebycheff scale)",
+    )
+    p.add_argument("--f-upper", nargs="+", type=float, default=None, help="upper bound each")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the algorithm")
+    p.add_argument("--config", default=None, help="env config as JSON or @file.json")
+    p.add_argument("--params", nargs="+", default=None, help="parameters to search (default all)")
+    p.add_argument("--space", default="unit", choices=["unit", "native"])
+    p.add_argument(
+        "--constraint",
+        action="append",
+        metavar="METRIC=LIMIT",
+        default=None,
+        help="constraint: worst seed's metric <= limit (repeatable; default max_overspeed_mps=0)",
+    )
+    p.add_argument(
+        "--normalization",
+        default="auto",
+        choices=["auto", "defaults", "pareto"],
+        help="scale of the final pick without --f-lower/--f-upper (default auto)",
+    )
+    p.add_argument(
+        "--no-defaults",
+        action="store_true",
+        help="do not seed the initial population with the default parameters",
+    )
+    p.add_argument("--max-retries", type=int, default=2, help="re-submissions of a failing run")
+    p.add_argument(
+        "--holdout-seeds",
+        nargs="+",
+        default=None,
+        help="after the run, compare selected vs defaults on these scenario seeds",
+    )
+    p.add_argument("--out", default=None, help="folder for CSV/Parquet and plots")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_tune)
+
+    sub = p.add_subparsers(dest="tune_command", metavar="{show}")
+    ps = sub.add_parser("show", help="print the Pareto set and selected solution of a study")
+    ps.add_argument("study", help="study name")
+    ps.add_argument("--storage", default=DEFAULT_STORAGE, help="Optuna storage URL")
+    ps.add_argument("--out", default=None, help="folder for CSV/Parquet and plots")
+    ps.add_argument("--max-rows", type=int, default=50, help="Pareto rows printed")
+    ps.set_defaults(func=cmd_show)
+    return p
+
+
+def write_outputs(result: Any, out: str | Path) -> list[Path]:
+    """CSV, Parquet (if pyarrow is there) and PNG plots of a result into folder ``out``."""
+    from tuners import plots
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = result.study_name.replace("/", "_")
+    files = [result.to_csv(out / f"{stem}.csv")]
+    try:
+        files.append(result.to_parquet(out / f"{stem}.parquet"))
+    except ImportError as exc:  # no parquet engine
+        print(f"note: no Parquet export ({exc})", file=sys.stderr)
+    df = result.evaluations
+    if len(df) and df["feasible"].any():
+        for name, fn in (
+            ("pareto", plots.pareto_front_figure),
+            ("parallel", plots.parallel_coordinates_figure),
+            ("hypervolume", plots.hypervolume_figure),
+        ):
+            path = out / f"{stem}_{name}.png"
+            fn(df).savefig(path, dpi=110)
+            files.append(path)
+    return files
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from tuners.run import show, tune
+
+    if not args.env:
+        raise ValueError("tune needs --env (or use `tune show <study>`)")
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    if (args.f_lower is None) != (args.f_upper is None):
+        raise ValueError("--f-lower and --f-upper go together")
+    f_bounds = None if args.f_lower is None else (args.f_lower, args.f_upper)
+    res = tune(
+        args.env,
+        args.algo,
+        args.pop,
+        args.iters,
+        workers=args.workers,
+        backend=args.backend,
+        dask_address=args.dask_address,
+        storage=args.storage,
+        study=args.study,
+        resume=args.resume,
+        seeds=_seeds(args.seeds) or [0],
+        objectives=args.objectives,
+        target_weights=args.target_weights,
+        f_bounds=f_bounds,
+        seed=args.seed,
+        config=_config(args.config),
+        params=args.params,
+        space=args.space,
+        constraints=_constraints(args.constraint),
+        normalization=args.normalization,
+        include_defaults=not args.no_defaults,
+        max_retries=args.max_retries,
+        progress=not args.no_progress,
+    )
+    st = res.stats
+    print(
+        f"{res.study_name}: {st.run} evaluations run, {st.cached} answered from the cache, "
+        f"{st.failed_attempts} failed attempts, {res.wall_time_s:.1f} s"
+    )
+    print(show(res.study_name, args.storage))
+    if args.holdout_seeds:
+        table = res.compare_on_seeds(_seeds(args.holdout_seeds))
+        print(f"Held-out seeds {_seeds(args.holdout_seeds)}:")
+        print(table.to_string(index=False))
+    if args.out:
+        for f in write_outputs(res, args.out):
+            print(f"wrote {f}")
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    from tuners.run import load_result, show
+
+    try:
+        print(show(args.study, args.storage, max_rows=args.max_rows))
+    except KeyError as exc:
+        print(f"error: {exc.args[0]}", file=sys.stderr)
+        return 2
+    if args.out:
+        for f in write_outputs(load_result(args.study, args.storage), args.out):
+            print(f"wrote {f}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry (``python -m tuners.cli tune ...``) until train_envs.cli wires it."""
+    parser = argparse.ArgumentParser(prog="train-envs")
+    add_tune_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,640 @@
+"""``tune()``: search an env's controller parameters — parallel, persistent, resumable.
+
+A run = a :class:`tuners.problem.EnvTuningProblem` (or any
+:class:`~tuners.problem.TaskProblem`), a pymoo algorithm (``mowoa``, ``pso``,
+``mopso``, or pymoo's ``nsga2`` / ``moead`` as baselines), an evaluation backend
+(:mod:`tuners.backends`) and an Optuna study (:mod:`tuners.storage`). Each generation is
+one batch of evaluations; every finished evaluation is written to the study at once and
+the algorithm is checkpointed after every generation, so ``resume=True`` continues a
+killed run without re-running any finished evaluation and ends with exactly the
+uninterrupted run's result (same seed).
+
+Budget: ``iters`` is pymoo's number of generations *including* the initial one, so a
+run makes at most ``pop × iters`` evaluations (fewer distinct ones: repeated points are
+answered from the cache).
+
+Result (:class:`TuneResult`): the DataFrame of all evaluations, the Pareto set (feasible
+non-dominated evaluations), and the selected solution — paper 004's pick: of the
+``pop`` subproblem weight vectors the one closest in angle to ``target_weights``, and
+the Pareto point minimising its Tchebycheff value (:func:`tuners.mowoa.select_by_cosine`).
+The Tchebycheff values of the pick and of the report are relative to the run's ideal
+point (best feasible value per objective) and, by default, scaled by the defaults'
+distance to it, so that "better than the defaults in every weighted objective" means a
+lower value (:func:`summarize`; ``f_bounds`` gives 004's fixed tolerance scale instead). With
+``include_defaults`` (default) the controller's default parameters are the first point
+of the initial population, so the run always contains — and can only improve on — them.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from pymoo.core.algorithm import Algorithm
+from pymoo.core.callback import Callback
+from pymoo.termination.max_gen import MaximumGenerationTermination
+from pymoo.util.display.display import Display
+
+from tuners.backends import EvalStats, Evaluations, make_backend
+from tuners.mowoa import (
+    MOWOA,
+    InitialSampling,
+    nondominated,
+    select_by_cosine,
+    tchebycheff,
+    weight_vectors,
+)
+from tuners.problem import EnvTuningProblem, TaskProblem
+from tuners.pso import MOPSO, PSO
+from tuners.storage import (
+    CONFIG_ATTR,
+    StudyStore,
+    checkpoint_info,
+    evaluations_frame,
+    load_study,
+)
+
+ALGORITHMS = ("mowoa", "pso", "mopso", "nsga2", "moead")
+DEFAULT_STORAGE = "sqlite:///tuning.db"
+
+__all__ = [
+    "ALGORITHMS",
+    "DEFAULT_STORAGE",
+    "TuneResult",
+    "load_result",
+    "make_algorithm",
+    "run_weight_vectors",
+    "show",
+    "summarize",
+    "tune",
+]
+
+
+# ----------------------------------------------------------------- algorithms
+def run_weight_vectors(n_obj: int, n: int, target: Sequence[float] | None = None) -> np.ndarray:
+    """The run's subproblem weight vectors: :func:`tuners.mowoa.weight_vectors` with the
+    one closest in angle to ``target`` replaced by the (normalised) target itself, so
+    that the user's preference is one of the subproblems and 004's cosine pick selects
+    exactly its elite."""
+    W = weight_vectors(n_obj, n).copy()
+    if target is None or n_obj == 1:
+        return W
+    w = np.asarray(target, float)
+    w = np.maximum(w / w.sum(), 1e-6)
+    w = w / w.sum()
+    cos = W @ w / (np.linalg.norm(W, axis=1) * np.linalg.norm(w))
+    W[int(np.argmax(cos))] = w
+    return W
+
+
+def make_algorithm(
+    algo: str,
+    pop: int,
+    problem: TaskProblem,
+    *,
+    target_weights: Sequence[float] | None = None,
+    initial_X: np.ndarray | None = None,
+    **kwargs: Any,
+) -> Algorithm:
+    """A pymoo algorithm by name; ``initial_X`` rows start the initial population.
+
+    The decomposition algorithms (``mowoa``, ``mopso``, ``moead``) get
+    :func:`run_weight_vectors` (the target is one of the subproblems) unless
+    ``ref_dirs`` is given.
+    """
+    if algo in ("mowoa", "mopso", "moead") and problem.n_obj > 1:
+        kwargs.setdefault("ref_dirs", run_weight_vectors(problem.n_obj, pop, target_weights))
+    if algo == "mowoa":
+        return MOWOA(pop_size=pop, initial_X=initial_X, **kwargs)
+    if algo == "pso":
+        return PSO(pop_size=pop, weights=target_weights, initial_X=initial_X, **kwargs)
+    if algo == "mopso":
+        return MOPSO(pop_size=pop, initial_X=initial_X, **kwargs)
+    if algo == "nsga2":
+        from pymoo.algorithms.moo.nsga2 import NSGA2
+
+        return NSGA2(pop_size=pop, sampling=InitialSampling(initial_X), **kwargs)
+    if algo == "moead":
+        from pymoo.algorithms.moo.moead import ParallelMOEAD
+
+        if problem.n_obj < 2:
+            raise ValueError("moead needs at least two objectives")
+        return ParallelMOEAD(
+            kwargs.pop("ref_dirs"),
+            n_neighbors=kwargs.pop("n_neighbors", max(2, int(np.ceil(0.2 * pop)))),
+            sampling=InitialSampling(initial_X),
+            **kwargs,
+        )
+    raise ValueError(f"algo must be one of {ALGORITHMS}, got {algo!r}")
+
+
+# -------------------------------------------------------------------- results
+NORMALIZATIONS = ("auto", "defaults", "pareto")
+#: with normalization="defaults", an objective in which the defaults are (nearly) the best
+#: found is scaled by at least this fraction of the median evaluation's distance to the best
+DEFAULTS_SCALE_FLOOR = 0.05
+
+
+def summarize(
+    df: pd.DataFrame,
+    objectives: Sequence[str],
+    target_weights: Sequence[float] | None = None,
+    n_weights: int = 40,
+    f_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
+    normalization: str = "auto",
+    default_key: str | None = None,
+) -> tuple[pd.DataFrame, pd.Series | None, np.ndarray | None, np.ndarray | None]:
+    r"""Mark the Pareto set and the selected solution in an evaluations frame.
+
+    Adds columns ``pareto``, ``selected`` and ``tchebycheff`` (normalised Tchebycheff
+    value :math:`\max_i w_i (f_i − z^*_i)/s_i` under the target weights) to ``df`` in
+    place. The pick is :func:`tuners.mowoa.select_by_cosine` over the run's
+    ``n_weights`` subproblem weight vectors (:func:`run_weight_vectors`, which contain
+    the target, so the pick is the Pareto solution with the lowest Tchebycheff value
+    under the target weights; ties: lowest weighted sum). :math:`z^*` is the best
+    feasible value per objective; the scale :math:`s`:
+
+    * ``f_bounds=(lower, upper)`` given: ``upper − lower`` (004's tolerance values);
+    * ``"defaults"``: the defaults' distance to the best, :math:`s_i = f^{def}_i − z^*_i`,
+      floored at 5 % of the median feasible evaluation's distance to the best (for
+      objectives in which the defaults are about the best), so the defaults score
+      :math:`\max_i w_i` and a solution scores lower only if it is better than them in
+      every objective that carries weight; as the defaults are evaluated, the pick is
+      never worse than them on the tuning seeds — needs the evaluated defaults
+      (``default_key``);
+    * ``"pareto"``: the Pareto set's range (nadir − ideal). With many objectives nearly
+      every evaluation is non-dominated and this range is set by very poor solutions;
+    * ``"auto"``: ``"defaults"`` if the defaults were evaluated and feasible, else
+      ``"pareto"``.
+
+    Returns (Pareto rows, selected row or None, ideal, ideal + scale); the mode used is
+    ``df.attrs["normalization"]``.
+    """
+    if normalization not in NORMALIZATIONS:
+        raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
+    objectives = list(objectives)
+    m = len(objectives)
+    w = np.full(m, 1.0 / m) if target_weights is None else np.asarray(target_weights, float)
+    w = w / w.sum()
+    df["pareto"] = False
+    df["selected"] = False
+    df["tchebycheff"] = np.nan
+    if len(df) == 0:
+        return df.iloc[0:0], None, None, None
+    feas = df["feasible"].to_numpy(bool)
+    if not feas.any():
+        return df.iloc[0:0], None, None, None
+    F = df.loc[feas, objectives].to_numpy(float)
+    idx_feas = np.flatnonzero(feas)
+    nd = idx_feas[nondominated(F)]
+    ideal = F.min(axis=0)
+    F_nd = df.iloc[nd][objectives].to_numpy(float)
+    drow = None
+    if default_key is not None and "key" in df:
+        hit = np.flatnonzero((df["key"] == default_key).to_numpy() & feas)
+        drow = int(hit[0]) if len(hit) else None
+    mode = normalization
+    if f_bounds is not None:
+        mode = "bounds"
+        nadir = ideal + (np.asarray(f_bounds[1], float) - np.asarray(f_bounds[0], float))
+    else:
+        if mode == "auto":
+            mode = "defaults" if drow is not None else "pareto"
+        if mode == "defaults":
+            if drow is None:
+                raise ValueError("normalization='defaults' needs the evaluated, feasible defaults")
+            fd = df.iloc[drow][objectives].to_numpy(float)
+            typical = np.median(F, axis=0) - ideal  # robust to the outliers of a search
+            floor = DEFAULTS_SCALE_FLOOR * np.maximum(typical, 0.0)
+            nadir = ideal + np.maximum(fd - ideal, np.maximum(floor, 1e-12))
+        else:
+            nadir = np.where(F_nd.max(axis=0) > ideal, F_nd.max(axis=0), F.max(axis=0))
+    df.attrs["normalization"] = mode
+    df.loc[df.index[nd], "pareto"] = True
+    df.loc[df.index[idx_feas], "tchebycheff"] = tchebycheff(F, w, ideal, nadir)
+    lam = run_weight_vectors(m, max(int(n_weights), 1), w)
+    pick = nd[select_by_cosine(F_nd, w, ideal, nadir, lam)]
+    df.loc[df.index[pick], "selected"] = True
+    return df.iloc[nd], df.iloc[pick], ideal, nadir
+
+
+@dataclass
+class TuneResult:
+    """Everything a tuning run produced.
+
+    Attributes:
+        study_name, storage: where the run lives (``storage`` None = in memory).
+        problem: the task problem (for re-evaluation on other seeds).
+        evaluations: one row per evaluation (see :func:`tuners.storage.evaluations_frame`)
+            plus ``pareto``, ``selected``, ``tchebycheff`` and ``is_default``.
+        pareto: the Pareto rows; selected: the selected row (or None if none feasible).
+        objectives: objective column names; target_weights: normalised target weights.
+        ideal, nadir: the normalisation of the Tchebycheff values and the selection
+            (scale = nadir − ideal); normalization: how it was chosen (:func:`summarize`).
+        pymoo_result: pymoo's ``Result`` (``res.X``, ``res.F``, ``res.opt``, ...).
+        stats: evaluation counters (run, cached, failures, times).
+    """
+
+    study_name: str
+    storage: str | None
+    problem: TaskProblem
+    algo: str
+    evaluations: pd.DataFrame
+    pareto: pd.DataFrame
+    selected: pd.Series | None
+    objectives: list[str]
+    target_weights: np.ndarray
+    ideal: np.ndarray | None
+    nadir: np.ndarray | None
+    normalization: str = "auto"
+    pymoo_result: Any = None
+    stats: EvalStats = field(default_factory=EvalStats)
+    wall_time_s: float = 0.0
+
+    @property
+    def selected_params(self) -> dict[str, float] | None:
+        """Controller parameters of the selected solution."""
+        if self.selected is None:
+            return None
+        return self.problem.param_values(np.asarray(self.selected["x"], float))
+
+    def to_csv(self, path: str | Path) -> Path:
+        path = Path(path)
+        self.evaluations.to_csv(path, index=False)
+        return path
+
+    def to_parquet(self, path: str | Path) -> Path:
+        path = Path(path)
+        df = self.evaluations.copy()
+        for col in ("x", "seeds"):
+            if col in df:
+                df[col] = df[col].map(json.dumps)
+        df.to_parquet(path, index=False)
+        return path
+
+    def tchebycheff_of(self, F: np.ndarray) -> np.ndarray:
+        """Tchebycheff values of objective rows under this run's weights/normalisation."""
+        return tchebycheff(np.atleast_2d(F), self.target_weights, self.ideal, self.nadir)
+
+    def compare_on_seeds(
+        self, seeds: Sequence[int], points: Mapping[str, np.ndarray] | None = None
+    ) -> pd.DataFrame:
+        """Evaluate the selected solution and the defaults on other (held-out) seeds.
+
+        Runs serially here. Returns one row per point with its mean objectives, worst
+        constraint values and Tchebycheff value under this run's target weights and
+        normalisation (lower is better).
+        """
+        if not isinstance(self.problem, EnvTuningProblem):
+            raise TypeError("compare_on_seeds needs an EnvTuningProblem")
+        prob = self.problem.with_seeds(seeds)
+        if points is None:
+            points = {"defaults": prob.default_x()}
+            if self.selected is not None:
+                points["selected"] = np.asarray(self.selected["x"], float)
+        rows = []
+        from tuners.problem import run_task
+
+        for name, x in points.items():
+            out = run_task(prob.make_task(np.asarray(x, float)))
+            row = {"point": name, **dict(zip(self.objectives, out["F"], strict=True))}
+            row.update({f"g:{n}": g for n, g in zip(prob.constr_names, out["G"], strict=True)})
+            row["tchebycheff"] = float(self.tchebycheff_of(np.asarray(out["F"]))[0])
+            row.update(prob.x_to_params(x))
+            rows.append(row)
+        return pd.DataFrame(rows)
+
+
+def _result_from_frame(
+    df: pd.DataFrame,
+    problem: TaskProblem | None,
+    study_name: str,
+    storage: str | None,
+    algo: str,
+    objectives: list[str],
+    target_weights: Sequence[float] | None,
+    default_key: str | None = None,
+    params: Sequence[str] | None = None,
+    n_weights: int = 40,
+    f_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
+    normalization: str = "auto",
+) -> TuneResult:
+    pareto, selected, ideal, nadir = summarize(
+        df, objectives, target_weights, n_weights, f_bounds, normalization, default_key
+    )
+    m = len(objectives)
+    w = np.full(m, 1.0 / m) if target_weights is None else np.asarray(target_weights, float)
+    df["is_default"] = (df["key"] == default_key) if len(df) and default_key else False
+    df.attrs["objectives"] = list(objectives)
+    df.attrs["params"] = list(params or [])
+    return TuneResult(
+        study_name=study_name,
+        storage=storage,
+        problem=problem,
+        algo=algo,
+        evaluations=df,
+        pareto=pareto,
+        selected=selected,
+        objectives=objectives,
+        target_weights=w / w.sum(),
+        ideal=ideal,
+        nadir=nadir,
+        normalization=df.attrs.get("normalization", normalization),
+    )
+
+
+# ----------------------------------------------------------------------- tune
+def tune(
+    env_id: str | TaskProblem,
+    algo: str = "mowoa",
+    pop: int = 40,
+    iters: int = 100,
+    *,
+    workers: int | None = None,
+    backend: str = "processes",
+    dask_address: str | None = None,
+    dask_client: Any = None,
+    storage: str | Any | None = DEFAULT_STORAGE,
+    study: str | None = None,
+    resume: bool = False,
+    seeds: Sequence[int] = (0,),
+    objectives: Sequence[str] | None = None,
+    target_weights: Sequence[float] | None = None,
+    f_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
+    normalization: str = "auto",
+    seed: int = 1,
+    config: Mapping[str, Any] | None = None,
+    params: Sequence[str] | None = None,
+    space: str = "unit",
+    constraints: Mapping[str, float] | None = None,
+    include_defaults: bool = True,
+    max_retries: int = 2,
+    algo_kwargs: Mapping[str, Any] | None = None,
+    progress: bool = False,
+    callback: Callback | None = None,
+    on_evaluation: Callable[[str, dict[str, Any], int | None], None] | None = None,
+) -> TuneResult:
+    """Tune the controller of ``env_id`` (or optimise any TaskProblem); see module doc.
+
+    Args:
+        env_id: registered env id, or a ready :class:`TaskProblem` (then ``seeds``,
+            ``objectives``, ``config``, ``params``, ``space``, ``constraints`` are unused).
+        algo: ``mowoa`` | ``pso`` | ``mopso`` | ``nsga2`` | ``moead``.
+        pop, iters: population size and generations (incl. the initial one).
+        workers, backend, dask_address, dask_client: evaluation backend
+            (``serial`` | ``processes`` | ``dask``; workers default: all cores).
+        storage: Optuna storage URL (default ``sqlite:///tuning.db``); None = in memory.
+        study: study name (default ``<env>-<algo>-s<seed>``); resume: continue it.
+        seeds: scenario seeds averaged per evaluation.
+        objectives: objective aliases / metric columns (default: 004's five available).
+        target_weights: weights of the final pick and of ``pso`` (default: equal).
+        f_bounds: (lower, upper) per objective: 004's tolerance bounds; the Tchebycheff
+            scale becomes upper − lower (algorithms and final pick); default adaptive.
+        normalization: scale of the final pick and reported Tchebycheff values when
+            ``f_bounds`` is not given: ``auto`` | ``defaults`` | ``pareto``
+            (:func:`summarize`).
+        seed: random seed of the algorithm.
+        config, params, space, constraints: see :class:`EnvTuningProblem`.
+        include_defaults: start the initial population with the default parameters.
+        max_retries: re-submissions of a failing evaluation.
+        algo_kwargs: extra keyword arguments of the algorithm.
+        progress: show a progress bar (generation, evaluations/s, best Tchebycheff value
+            under the target weights, normalised by the first generation's range).
+        callback: pymoo callback called after every generation.
+        on_evaluation: called with (key, outcome, generation) after each new evaluation.
+    """
+    t_start = time.perf_counter()
+    if normalization not in NORMALIZATIONS:
+        raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
+    if algo not in ALGORITHMS:
+        raise ValueError(f"algo must be one of {ALGORITHMS}, got {algo!r}")
+    if pop < 2 or iters < 1:
+        raise ValueError(f"need pop >= 2 and iters >= 1, got pop={pop}, iters={iters}")
+    mode = "penalty" if algo == "moead" else "constraint"
+    if isinstance(env_id, TaskProblem):
+        problem = env_id
+        if algo == "moead" and problem.n_ieq_constr:
+            raise ValueError("moead has no constraint handling: build the problem in penalty mode")
+        env_name = getattr(problem, "env_id", getattr(problem, "name_", type(problem).__name__))
+    else:
+        problem = EnvTuningProblem(
+            env_id,
+            objectives=objectives,
+            seeds=seeds,
+            config=config,
+            params=params,
+            space=space,
+            constraints=constraints,
+            constraint_mode=mode,
+        )
+        env_name = env_id
+    m = problem.n_obj
+    if target_weights is not None and len(target_weights) != m:
+        raise ValueError(
+            f"target_weights needs {m} values ({problem.obj_names}), got {target_weights}"
+        )
+    weights = list(np.full(m, 1.0 / m) if target_weights is None else target_weights)
+    study_name = study or f"{str(env_name).split('/')[-1]}-{algo}-s{seed}"
+    initial_X = None
+    default_key = None
+    if include_defaults and hasattr(problem, "default_x"):
+        initial_X = problem.default_x()[None, :]
+        default_key = problem.key(initial_X[0])
+    run_config = {
+        "env_id": str(env_name),
+        "algo": algo,
+        "pop": int(pop),
+        "iters": int(iters),
+        "seed": int(seed),
+        "seeds": list(getattr(problem, "seeds", []) or []),
+        "objective_names": list(problem.obj_names),
+        "constraint_names": list(problem.constr_names),
+        "param_names": list(problem.var_names),
+        "target_weights": [float(v) for v in weights],
+        "f_bounds": None if f_bounds is None else [list(map(float, b)) for b in f_bounds],
+        "normalization": normalization,
+        "include_defaults": bool(include_defaults),
+        "algo_kwargs": dict(algo_kwargs or {}),
+        "fingerprint": problem.fingerprint_hash(),
+        "problem": problem.fingerprint(),
+        "default_key": default_key,
+    }
+    store = StudyStore(storage, study_name, problem, run_config, resume=resume)
+    cache = store.load_cache() if store.resumed else {}
+    be = make_backend(
+        backend, workers, address=dask_address, client=dask_client, max_retries=max_retries
+    )
+    bar = None
+    t_loop = time.perf_counter()
+
+    def _on_evaluation(key: str, outcome: dict[str, Any], generation: int | None) -> None:
+        if bar is not None:  # live rate within long generations
+            rate = evals.stats.run / max(time.perf_counter() - t_loop, 1e-9)
+            bar.set_postfix(gen=generation, evals=evals.stats.run, evals_per_s=f"{rate:.2f}")
+        if on_evaluation is not None:
+            on_evaluation(key, outcome, generation)
+
+    evals = Evaluations(be, store, cache, on_evaluation=_on_evaluation)
+    problem.runner = evals
+
+    algorithm = store.load_checkpoint() if store.resumed else None
+    if algorithm is not None:
+        algorithm.problem = problem
+        algorithm.callback = callback if callback is not None else Callback()
+        algorithm.display = Display(algorithm.output, verbose=False)
+        algorithm.history = []
+        term = MaximumGenerationTermination(iters)
+        term.perc = (algorithm.n_iter - 1) / iters
+        algorithm.termination = term
+    else:
+        kw = dict(algo_kwargs or {})
+        if f_bounds is not None and algo in ("mowoa", "mopso", "pso"):
+            kw.setdefault("f_bounds", f_bounds)
+        algorithm = make_algorithm(
+            algo, pop, problem, target_weights=weights, initial_X=initial_X, **kw
+        )
+        algorithm.setup(
+            problem,
+            termination=("n_gen", iters),
+            seed=seed,
+            verbose=False,
+            callback=callback if callback is not None else Callback(),
+        )
+
+    bar_ref: dict[str, np.ndarray] = {}  # frozen normalisation of the bar's best value
+    if progress:
+        from tqdm.auto import tqdm
+
+        done = (algorithm.n_iter - 1) if algorithm.n_iter else 0
+        bar = tqdm(total=iters, initial=min(done, iters), desc=study_name, unit="gen")
+    t_loop = time.perf_counter()
+    try:
+        while algorithm.has_next():
+            algorithm.next()
+            t_ck = time.perf_counter()
+            store.save_checkpoint(algorithm)
+            evals.stats.checkpoint_time_s += time.perf_counter() - t_ck
+            if bar is not None:
+                rate = evals.stats.run / max(time.perf_counter() - t_loop, 1e-9)
+                bar.update(1)
+                bar.set_postfix(
+                    gen=algorithm.n_iter - 1,
+                    evals=evals.stats.run,
+                    evals_per_s=f"{rate:.2f}",
+                    best=f"{_best_scalar(evals.cache, weights, f_bounds, bar_ref):.4g}",
+                )
+        res = algorithm.result()
+    finally:
+        if bar is not None:
+            bar.close()
+        be.close()
+        problem.runner = None
+
+    df = evaluations_frame(store.study)
+    out = _result_from_frame(
+        df,
+        problem,
+        study_name,
+        storage if isinstance(storage, str) or storage is None else repr(storage),
+        algo,
+        list(problem.obj_names),
+        weights,
+        default_key,
+        list(problem.var_names),
+        pop,
+        f_bounds,
+        normalization,
+    )
+    out.pymoo_result = res
+    out.stats = evals.stats
+    out.wall_time_s = time.perf_counter() - t_start
+    return out
+
+
+def _best_scalar(
+    cache: Mapping[str, Mapping[str, Any]],
+    weights: Sequence[float],
+    f_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
+    ref: dict[str, np.ndarray] | None = None,
+) -> float:
+    """Best Tchebycheff value so far for the progress bar.
+
+    The normalisation is frozen at the first call (in ``ref``) so that the shown value
+    can only go down.
+    """
+    F = [o["F"] for o in cache.values() if not o.get("failed") and max(o.get("G") or [0]) <= 0]
+    if not F:
+        return float("nan")
+    F = np.asarray(F, float)
+    ref = {} if ref is None else ref
+    if "ideal" not in ref:
+        ideal = F.min(axis=0)
+        nadir = F[nondominated(F)].max(axis=0)
+        nadir = np.where(nadir > ideal, nadir, F.max(axis=0))
+        if f_bounds is not None:
+            nadir = ideal + (np.asarray(f_bounds[1], float) - np.asarray(f_bounds[0], float))
+        ref.update(ideal=ideal, nadir=nadir)
+    w = np.asarray(weights, float)
+    return float(np.min(tchebycheff(F, w / w.sum(), ref["ideal"], ref["nadir"])))
+
+
+# ------------------------------------------------------------------ show/load
+def load_result(study: str, storage: str = DEFAULT_STORAGE) -> TuneResult:
+    """Rebuild a :class:`TuneResult` (without the problem/pymoo result) from a study."""
+    st = load_study(study, storage)
+    cfg = st.user_attrs.get(CONFIG_ATTR) or {}
+    objectives = cfg.get("objective_names") or st.metric_names
+    df = evaluations_frame(st)
+    return _result_from_frame(
+        df,
+        None,
+        study,
+        storage,
+        cfg.get("algo", "?"),
+        list(objectives),
+        cfg.get("target_weights"),
+        cfg.get("default_key"),
+        cfg.get("param_names"),
+        int(cfg.get("pop", 40)),
+        cfg.get("f_bounds"),
+        cfg.get("normalization", "auto"),
+    )
+
+
+def show(study: str, storage: str = DEFAULT_STORAGE, max_rows: int = 50) -> str:
+    """Text report of a study: settings, Pareto set, selected solution, defaults."""
+    r = load_result(study, storage)
+    st = load_study(study, storage)
+    cfg = st.user_attrs.get(CONFIG_ATTR) or {}
+    ckpt = checkpoint_info(study, storage) or {}
+    df = r.evaluations
+    params = cfg.get("param_names") or []
+    cols = [c for c in params + r.objectives + ["tchebycheff"] if c in df.columns]
+    lines = [
+        f"study {study} ({storage}): env {cfg.get('env_id')}, algo {cfg.get('algo')}, "
+        f"pop {cfg.get('pop')}, iters {cfg.get('iters')}, seed {cfg.get('seed')}, "
+        f"scenario seeds {cfg.get('seeds')}",
+        f"generations done {ckpt.get('n_gen', '?')}, evaluations {len(df)} "
+        f"({int(df['failed'].sum()) if len(df) else 0} failed, "
+        f"{int((~df['feasible']).sum()) if len(df) else 0} infeasible), "
+        f"target weights {np.round(r.target_weights, 4).tolist()}, "
+        f"normalisation {r.normalization}",
+    ]
+    with pd.option_context("display.float_format", "{:.5g}".format, "display.width", 200):
+        lines.append(f"Pareto set ({len(r.pareto)} solutions):")
+        if len(r.pareto):
+            lines.append(r.pareto[cols].head(max_rows).to_string(index=False))
+        if r.selected is not None:
+            lines.append("Selected (cosine similarity to the target weights):")
+            lines.append(r.selected[cols].to_frame().T.to_string(index=False))
+        dflt = df[df["is_default"]] if "is_default" in df else df.iloc[0:0]
+        if len(dflt):
+            lines.append("Defaults:")
+            lines.append(dflt[cols].to_string(index=False))
+    return "\n".join(lines)
