@@ -51,7 +51,7 @@ def main() -> None:
         ("paper000_single_section", "6-car SEMPC, N=20", MultiCarMPC(Np=20)),
     ]
     print(
-        "| problem | steps | median wall/step [µs] | median OSQP solve [µs] | ratio | failed solves |"
+        "| problem | steps | median wall/step [µs] | median OSQP [µs] | ratio | failed |"
     )
     print("|---|---:|---:|---:|---:|---:|")
     for scenario, label, ctrl in cases:
