@@ -80,7 +80,39 @@ def augmented_terminal_cost(
 
 
 class _TrainMPCBase(Controller):
-    """Shared plumbing: solver info, weight updates only when values change."""
+    """Shared plumbing: options, solver info, weight updates only when values change."""
+
+    def __init__(
+        self,
+        *,
+        Np: int,
+        terminal: bool,
+        feedforward: str,
+        relinearise_mps: float,
+        soft_penalty: float,
+        observer_gain: float,
+        **params: float,
+    ) -> None:
+        if feedforward not in ("full", "gradient", "none"):
+            raise ValueError(
+                f"feedforward must be 'full', 'gradient' or 'none', got {feedforward!r}"
+            )
+        if int(Np) < 1:
+            raise ValueError(f"Np must be >= 1, got {Np}")
+        self.Np = int(Np)
+        self.terminal = bool(terminal)
+        self.feedforward = feedforward
+        self.observer_gain = float(observer_gain)
+        self.relinearise_mps = float(relinearise_mps)
+        self.soft_penalty = float(soft_penalty)
+        self._mpc: LinearMPC | None = None
+        self._weights_key: tuple | None = None
+        super().__init__(**params)
+
+    def _apply_weights(self) -> None:
+        Q, R, P = self._weights()
+        self._mpc.set_weights(Q=Q, R=R, P=P)
+        self._weights_key = tuple(sorted(self._params.items()))
 
     def _info(self, sol) -> dict[str, Any]:
         return {
@@ -149,22 +181,16 @@ class PointMassMPC(_TrainMPCBase):
         observer_gain: float = 0.3,
         **params: float,
     ) -> None:
-        if feedforward not in ("full", "gradient", "none"):
-            raise ValueError(
-                f"feedforward must be 'full', 'gradient' or 'none', got {feedforward!r}"
-            )
-        if int(Np) < 1:
-            raise ValueError(f"Np must be >= 1, got {Np}")
-        self.Np = int(Np)
-        self.terminal = bool(terminal)
-        self.feedforward = feedforward
-        self.observer_gain = float(observer_gain)
         self.jerk_max = float(jerk_max)
-        self.relinearise_mps = float(relinearise_mps)
-        self.soft_penalty = float(soft_penalty)
-        self._mpc: LinearMPC | None = None
-        self._weights_key: tuple | None = None
-        super().__init__(**params)
+        super().__init__(
+            Np=Np,
+            terminal=terminal,
+            feedforward=feedforward,
+            relinearise_mps=relinearise_mps,
+            soft_penalty=soft_penalty,
+            observer_gain=observer_gain,
+            **params,
+        )
 
     # ----------------------------------------------------------------- model
     def _continuous(self, v_lin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -200,10 +226,6 @@ class PointMassMPC(_TrainMPCBase):
             _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R)
         return Q, R, P
 
-    def _apply_weights(self) -> None:
-        Q, R, P = self._weights()
-        self._mpc.set_weights(Q=Q, R=R, P=P)
-        self._weights_key = tuple(sorted(self._params.items()))
 
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)
@@ -393,21 +415,15 @@ class MultiCarMPC(_TrainMPCBase):
         observer_gain: float = 0.3,
         **params: float,
     ) -> None:
-        if feedforward not in ("full", "gradient", "none"):
-            raise ValueError(
-                f"feedforward must be 'full', 'gradient' or 'none', got {feedforward!r}"
-            )
-        if int(Np) < 1:
-            raise ValueError(f"Np must be >= 1, got {Np}")
-        self.Np = int(Np)
-        self.terminal = bool(terminal)
-        self.feedforward = feedforward
-        self.observer_gain = float(observer_gain)
-        self.relinearise_mps = float(relinearise_mps)
-        self.soft_penalty = float(soft_penalty)
-        self._mpc: LinearMPC | None = None
-        self._weights_key: tuple | None = None
-        super().__init__(**params)
+        super().__init__(
+            Np=Np,
+            terminal=terminal,
+            feedforward=feedforward,
+            relinearise_mps=relinearise_mps,
+            soft_penalty=soft_penalty,
+            observer_gain=observer_gain,
+            **params,
+        )
         if not terminal:
             self.name = "mpc000"
 
@@ -450,10 +466,6 @@ class MultiCarMPC(_TrainMPCBase):
             _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R)
         return Q, R, P
 
-    def _apply_weights(self) -> None:
-        Q, R, P = self._weights()
-        self._mpc.set_weights(Q=Q, R=R, P=P)
-        self._weights_key = tuple(sorted(self._params.items()))
 
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)
