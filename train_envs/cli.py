@@ -91,9 +91,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from train_envs.reproduce import REPRODUCTIONS
+    from train_envs.reproduce import get_reproduction
 
-    df = REPRODUCTIONS[args.paper](seed=args.seed)
+    df = get_reproduction(args.paper)(seed=args.seed)
     with pd.option_context("display.float_format", "{:.4g}".format, "display.width", 200):
         print(df.to_string(index=False))
     if args.csv:
@@ -136,7 +136,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_tune_parser(sub)
     pr = sub.add_parser("reproduce", help="print our results beside a paper's tables")
-    pr.add_argument("paper", choices=["paper000"])
+    from train_envs.reproduce import list_reproductions
+
+    pr.add_argument("paper", choices=list_reproductions())
     pr.add_argument("--seed", type=int, default=0)
     pr.add_argument("--csv", default=None, help="also write the table to this CSV file")
     pr.set_defaults(func=cmd_reproduce)

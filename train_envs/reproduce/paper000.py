@@ -52,5 +52,3 @@ def reproduce_paper000(seed: int = 0) -> pd.DataFrame:
         )
     return pd.DataFrame(rows)
 
-
-REPRODUCTIONS = {"paper000": reproduce_paper000}
