@@ -6,6 +6,8 @@ Run (not a test; numbers go in the closing notes)::
     python benchmarks/bench_tuners.py persistence   # Optuna/SQLite cost per evaluation
     python benchmarks/bench_tuners.py convergence   # MOWOA/MOPSO vs NSGA-II on ZDT
     python benchmarks/bench_tuners.py tune004       # 20 x 10 tuning run on paper 004
+    python benchmarks/bench_tuners.py compare004 --pop004 16 --iters004 8 --seeds 1 2 3
+                                                    # MOWOA vs NSGA-II vs MOEA/D on 004 (HV)
     python benchmarks/bench_tuners.py all
 
 ``speed`` evaluates the same points on ``--env`` (default the 004 Fuzzy-PID id, one
@@ -242,9 +244,82 @@ def bench_tune004(env_id: str, pop: int, iters: int, workers: int, seeds, holdou
     return out
 
 
+# ----------------------------------------------------------------- compare004
+def bench_compare004(env_id: str, pop: int, iters: int, workers: int, seeds, train_seeds, db):
+    """MOWOA vs pymoo's NSGA-II and MOEA/D on the 004 env at equal budget (hypervolume).
+
+    Each algorithm runs ``pop x iters`` evaluations per algorithm seed on the same
+    disturbed training seeds. Hypervolume of each run's feasible non-dominated set is
+    measured in objectives normalised by the ideal and nadir of the union of all runs'
+    feasible points, with reference point 1.1 in every objective (larger is better).
+    """
+    import optuna
+    from pymoo.indicators.hv import HV
+
+    from tuners.mowoa import nondominated
+    from tuners.run import tune
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    fronts: dict[tuple[str, int], np.ndarray] = {}
+    walls: dict[tuple[str, int], float] = {}
+    objs = None
+    for algo in ("mowoa", "nsga2", "moead"):
+        for s in seeds:
+            t0 = time.perf_counter()
+            r = tune(
+                env_id,
+                algo,
+                pop,
+                iters,
+                workers=workers,
+                storage=db,
+                study=f"compare004-{algo}-{pop}x{iters}-s{s}",
+                resume=True,
+                seeds=train_seeds,
+                config=DISTURBANCE,
+                constraints=CONSTRAINTS,
+                f_bounds=TOLERANCES,
+                seed=s,
+            )
+            walls[(algo, s)] = time.perf_counter() - t0
+            objs = r.objectives
+            df = r.evaluations
+            F = df.loc[df["feasible"], list(objs)].to_numpy(float)
+            fronts[(algo, s)] = F[nondominated(F)] if len(F) else F
+            print(
+                f"[compare004] {algo} seed {s}: {len(df)} evaluations, "
+                f"{len(fronts[(algo, s)])} non-dominated, {walls[(algo, s)]:.0f} s"
+            )
+    allF = np.vstack([F for F in fronts.values() if len(F)])
+    lo, hi = allF.min(axis=0), allF.max(axis=0)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    hv = HV(ref_point=np.full(allF.shape[1], 1.1))
+    out: dict = {
+        "env": env_id,
+        "pop": pop,
+        "iters": iters,
+        "seeds": list(seeds),
+        "objectives": list(objs),
+        "runs": {},
+    }
+    for algo in ("mowoa", "nsga2", "moead"):
+        vals = [
+            float(hv((fronts[(algo, s)] - lo) / span)) if len(fronts[(algo, s)]) else 0.0
+            for s in seeds
+        ]
+        out["runs"][algo] = {"hv": vals, "wall_s": [walls[(algo, s)] for s in seeds]}
+        print(
+            f"[compare004] {algo:6s} HV mean {np.mean(vals):.4f} +- {np.std(vals):.4f} "
+            f"({', '.join(f'{v:.4f}' for v in vals)})  [{pop} x {iters}, seeds {list(seeds)}]"
+        )
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("part", choices=["speed", "persistence", "convergence", "tune004", "all"])
+    ap.add_argument(
+        "part", choices=["speed", "persistence", "convergence", "tune004", "compare004", "all"]
+    )
     ap.add_argument("--env", default="TrainEnvs/Urban004FuzzyPID-v0")
     ap.add_argument("--n", type=int, default=12, help="evaluations of the speed benchmark")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
@@ -283,6 +358,20 @@ def main() -> None:
             args.workers,
             args.train_seeds,
             args.holdout,
+            args.db,
+        )
+    if args.part == "compare004":
+        import train_envs  # noqa: F401
+
+        if args.db.startswith("sqlite:///"):
+            Path(args.db[len("sqlite:///") :]).parent.mkdir(parents=True, exist_ok=True)
+        res["compare004"] = bench_compare004(
+            args.env004 or "TrainEnvs/Urban004-v0",
+            args.pop004,
+            args.iters004,
+            args.workers,
+            args.seeds[:3],
+            args.train_seeds,
             args.db,
         )
     if args.json:

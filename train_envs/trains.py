@@ -20,6 +20,8 @@ from functools import cache
 from importlib import resources
 from typing import Any
 
+import numpy as np
+
 from train_envs.validation import check_nonnegative, check_positive, check_range
 
 G = 9.81  # m/s², gravitational acceleration used throughout
@@ -152,6 +154,26 @@ class TrainParams:
         if math.isfinite(self.max_accel_mps2):
             f = min(f, self.inertial_mass_kg * self.max_accel_mps2 + self.resistance_N(av))
         return f
+
+    def envelope_N(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Vectorised force bounds ``(−max_brake_N(v), max_traction_N(v))`` for speeds ``v``."""
+        av = np.abs(np.asarray(v, dtype=float))
+        pos = av > 0
+        safe = np.where(pos, av, 1.0)
+        hi = np.full(av.shape, self.max_traction_force_N)
+        if math.isfinite(self.max_traction_power_W):
+            hi = np.where(pos, np.minimum(hi, self.max_traction_power_W / safe), hi)
+        if math.isfinite(self.max_accel_mps2):
+            davis = self.davis_a_N + self.davis_b_Ns_per_m * av + self.davis_c_Ns2_per_m2 * av**2
+            res = np.where(pos, davis, 0.0)
+            hi = np.minimum(hi, self.inertial_mass_kg * self.max_accel_mps2 + res)
+        lo = np.full(av.shape, self.max_brake_force_N)
+        if math.isfinite(self.max_brake_power_W):
+            lo = np.where(pos, np.minimum(lo, self.max_brake_power_W / safe), lo)
+        lo = lo + self.max_friction_brake_force_N
+        if math.isfinite(self.max_decel_mps2):
+            lo = np.minimum(lo, self.inertial_mass_kg * self.max_decel_mps2)
+        return -lo, hi
 
     def max_brake_N(self, v: float) -> float:
         """Braking envelope (positive number) = power-limited electric + friction [N]."""

@@ -243,6 +243,17 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if args.out:
         for f in write_outputs(res, args.out):
             print(f"wrote {f}")
+        if args.holdout_seeds and res.selected is not None:
+            from train_envs.plotting import speed_distance_figure
+
+            seed = _seeds(args.holdout_seeds)[0]
+            runs = res.trajectories(seed)
+            fig = speed_distance_figure(
+                runs, title=f"{args.env}: defaults vs selected, held-out seed {seed}"
+            )
+            path = Path(args.out) / f"{res.study_name.replace('/', '_')}_speed_distance.png"
+            fig.savefig(path, dpi=110)
+            print(f"wrote {path}")
     return 0
 
 

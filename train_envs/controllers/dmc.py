@@ -668,12 +668,18 @@ class DMCController(Controller):
         the soft level bounds of stages k … k+P−1 (scalars or (P,)).
         """
         P = self.P
-        r = np.column_stack([w - y_free + u_prev * self.a[:P], np.zeros(P)])
-        lo = np.broadcast_to(np.asarray(u_lo, dtype=float), (P,))
-        hi = np.broadcast_to(np.asarray(u_hi, dtype=float), (P,))
-        y_min = np.column_stack([np.full(P, -np.inf), lo])
-        y_max = np.column_stack([np.full(P, np.inf), hi])
-        return self.mpc.solve(np.zeros(P), np.array([u_prev]), r, y_min=y_min, y_max=y_max)
+        bufs = self.__dict__.get("_opt_bufs")
+        if bufs is None or bufs[0].shape[0] != P:
+            r = np.zeros((P, 2))
+            y_min = np.column_stack([np.full(P, -np.inf), np.zeros(P)])
+            y_max = np.column_stack([np.full(P, np.inf), np.zeros(P)])
+            bufs = self._opt_bufs = (r, y_min, y_max, np.zeros(P))
+        r, y_min, y_max, x0 = bufs
+        np.subtract(w, y_free, out=r[:, 0])
+        r[:, 0] += u_prev * self.a[:P]
+        y_min[:, 1] = u_lo
+        y_max[:, 1] = u_hi
+        return self.mpc.solve(x0, np.array([u_prev]), r, y_min=y_min, y_max=y_max)
 
     # -------------------------------------------------------------- control
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
@@ -728,8 +734,7 @@ class DMCController(Controller):
         # ---- rolling optimisation on the shared core (§2)
         tr = ctx.train
         v_pred = np.maximum(np.concatenate([[y], y_pred[:-1]]), 0.0)
-        lo = np.array([-tr.max_brake_N(v) for v in v_pred])
-        hi = np.array([tr.max_traction_N(v) for v in v_pred])
+        lo, hi = tr.envelope_N(v_pred)
         sol = self.optimise(w, yP0, u_prev, (lo - ff) / M, (hi - ff) / M)
         u_a = float(sol.u0[0])
         self._dU_plan = np.diff(np.concatenate([[u_prev], sol.U[:, 0]]))

@@ -401,13 +401,20 @@ class TrainPlant:
                     p_last = 0.0
                     continue
             n0 = nl(z[0], z[1], t)
-            a = [
-                sum(Phi[i][j] * z[j] for j in range(nz)) + Gam[i] * w + P1[i] * n0
-                for i in range(nz)
-            ]
+            if nz == 3:  # unrolled: this line is the hottest of every point-mass episode
+                z0, z1, z2 = z
+                a = [
+                    r[0] * z0 + r[1] * z1 + r[2] * z2 + g * w + p * n0
+                    for r, g, p in zip(Phi, Gam, P1, strict=True)
+                ]
+            else:
+                a = [
+                    sum(Phi[i][j] * z[j] for j in range(nz)) + Gam[i] * w + P1[i] * n0
+                    for i in range(nz)
+                ]
             n1 = nl(a[0], a[1], t + h)
             dn = n1 - n0
-            z_new = [a[i] + P2[i] * dn for i in range(nz)]
+            z_new = [ai + p2 * dn for ai, p2 in zip(a, P2, strict=True)]
             v_old, v_new = z[1], z_new[1]
             p1 = (w if order == 0 else z_new[2]) * v_new
             tot = p_last + p1
