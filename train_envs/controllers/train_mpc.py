@@ -215,6 +215,15 @@ class PointMassMPC(_TrainMPCBase):
         Ad, BE = zoh(Ac, np.hstack([Bc, Ec]), self.ctx.dt_s)
         self._Ad, self._Bd, self._Ed = Ad, BE[:, :1], BE[:, 1]
         self._v_lin = v_lin
+        # dead-time prediction in one shot (001 eq. 10): x(k+l) = A^l x + B_l u_pend + E_l w
+        nd = getattr(self, "_l", 0)
+        if nd:
+            powers = [np.eye(Ad.shape[0])]
+            for _ in range(nd):
+                powers.append(Ad @ powers[-1])
+            self._Al = powers[nd]
+            self._Bl = np.column_stack([powers[nd - 1 - j] @ self._Bd[:, 0] for j in range(nd)])
+            self._El = np.column_stack([powers[nd - 1 - j] @ self._Ed for j in range(nd)])
 
     def _weights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         p = self._params
@@ -272,6 +281,12 @@ class PointMassMPC(_TrainMPCBase):
         self._ymax_buf = np.full((self.Np, 2), 1e6)
         if ctx.s_stop_m is not None:
             self._ymax_buf[:, 0] = ctx.s_stop_m
+        # constants of the per-stage affine term (see _affine)
+        self._steps = ctx.dt_s * np.arange(1, max(self.Np, self._l, 1) + 1)
+        self._ff_full = self.feedforward == "full"
+        use_grad = self.feedforward in ("full", "gradient") and ctx.track is not None
+        self._grad_tab = gradient_table(ctx.track) if use_grad else None
+        self._k_grad = tr.mass_kg * G / 1000.0 / self._mi
 
     # --------------------------------------------------------------- helpers
     def _observe(self, x: np.ndarray) -> None:
@@ -282,40 +297,40 @@ class PointMassMPC(_TrainMPCBase):
             self._w_hat = min(max(self._w_hat, -1.0), 1.0)
 
     def _affine(self, s_r: np.ndarray, v_r: np.ndarray) -> np.ndarray:
-        """Per-stage affine acceleration w_i (see class docstring), incl. the estimate ŵ."""
-        tr = self.ctx.train
+        """Per-stage affine acceleration w_i (see class docstring), incl. the estimate ŵ.
+
+        ``w = ŵ − (R(v_r) − R'(v_lin) v_r)/M' − M g θ(s_r)/(1000 M')`` with the Davis
+        constant term only where v_r > 0 (at standstill resistance cannot drive).
+        """
         w = np.full_like(v_r, self._w_hat)
-        if self.feedforward == "full":
+        if self._ff_full:
+            tr = self.ctx.train
             vr = np.maximum(v_r, 0.0)
-            R = tr.davis_a_N * (vr > 0) + tr.davis_b_Ns_per_m * vr + tr.davis_c_Ns2_per_m2 * vr * vr
             slope = tr.davis_b_Ns_per_m + 2.0 * tr.davis_c_Ns2_per_m2 * self._v_lin
-            w -= (R - slope * vr) / self._mi
-        if self.feedforward in ("full", "gradient") and self.ctx.track is not None:
-            theta = gradient_table(self.ctx.track)(s_r)
-            w -= tr.mass_kg * G * theta / 1000.0 / self._mi
+            w -= (
+                tr.davis_a_N * (vr > 0)
+                + (tr.davis_b_Ns_per_m - slope + tr.davis_c_Ns2_per_m2 * vr) * vr
+            ) / self._mi
+        if self._grad_tab is not None:
+            w -= self._k_grad * self._grad_tab(s_r)
         return w
 
     def _reference(self, t: float, s: float, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Reference (s, v) for stages 1..n starting at time ``t`` / position ``s``."""
         ref = self.ctx.reference
         prof = ref.profile
-        dt = self.ctx.dt_s
-        if ref.mode == "distance":
-            t0 = float(prof.t_at_s(s))
-        else:
-            t0 = t
-        ts = t0 + dt * np.arange(1, n + 1)
-        return np.asarray(prof.s_at_t(ts), float), np.asarray(prof.v_at_t(ts), float)
+        t0 = float(prof.t_at_s(s)) if ref.mode == "distance" else t
+        return prof.sv_at_t(t0 + self._steps[:n])
 
     # --------------------------------------------------------------- control
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
         ctx = self.ctx
         mi = self._mi
-        u_prev = float(np.sum(obs.u_prev_N)) / mi
+        u_prev = float(obs.u_prev_N.sum()) / mi
         if not self._initialised:
             self._pending = deque([u_prev] * self._l, maxlen=max(self._l, 1))
             self._initialised = True
-        a_meas = float(np.sum(obs.forces_N)) / mi
+        a_meas = float(obs.forces_N.sum()) / mi
         x = np.array([obs.s_m, obs.v_mps, a_meas]) if self._lag else np.array([obs.s_m, obs.v_mps])
         self._observe(x)
         x_meas = x
@@ -324,8 +339,8 @@ class PointMassMPC(_TrainMPCBase):
         if self._l:
             s_p, v_p = self._reference(t - ctx.dt_s, obs.s_m, self._l)
             w = self._affine(s_p, v_p)
-            for j, u_j in enumerate(self._pending):
-                x = self._Ad @ x + self._Bd[:, 0] * u_j + self._Ed * w[j]
+            u_pend = np.fromiter(self._pending, float, self._l)
+            x = self._Al @ x + self._Bl @ u_pend + self._El @ w
             t = t + self._l * ctx.dt_s
         s_r, v_r = self._reference(t, float(x[0]), self.Np)
         v_now = float(v_r[0])

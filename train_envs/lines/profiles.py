@@ -200,6 +200,16 @@ class SpeedProfile:
         s = self.s_m[i] + self.v_mps[i] * tau + 0.5 * self._a[i] * tau * tau
         return np.minimum(s, self.s_m[i + 1])
 
+    def sv_at_t(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(s_at_t(t), v_at_t(t))`` for an array of times with one segment search."""
+        x = np.asarray(t, float)
+        i = self._seg(x, self.t_s)
+        t0 = self.t_s[i]
+        tau = np.minimum(np.maximum(x - t0, 0.0), self.t_s[i + 1] - t0)
+        v0, a = self.v_mps[i], self._a[i]
+        s = np.minimum(self.s_m[i] + (v0 + 0.5 * a * tau) * tau, self.s_m[i + 1])
+        return s, np.maximum(v0 + a * tau, 0.0)
+
     def v_at_t(self, t: FloatOrArray) -> FloatOrArray:
         """Speed [m/s] at time ``t`` [s]: ``v_i + a_i τ`` (linear in time per segment)."""
         if isinstance(t, _SCALAR):
