@@ -135,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
     from tuners.cli import add_tune_parser
 
     add_tune_parser(sub)
+    from agents.cli import add_agents_parsers
+
+    add_agents_parsers(sub)  # train, evaluate
     pr = sub.add_parser("reproduce", help="print our results beside a paper's tables")
     from train_envs.reproduce import list_reproductions
 

@@ -6,12 +6,15 @@ import inspect
 from collections.abc import Callable
 from typing import Any
 
+from train_envs.controllers.adaptive_mpc import AdaptiveCruiseMPC, NominalCruiseMPC
 from train_envs.controllers.afsmc import AFSMCController
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.dmc import DMCController
 from train_envs.controllers.fuzzy_pid import FuzzyPIDController
 from train_envs.controllers.pid import PIDController
+from train_envs.controllers.rsmpc import RobustSelfTriggeredMPC
 from train_envs.controllers.train_mpc import MultiCarMPC, PointMassMPC
+from train_envs.controllers.tube_mpc import TubeMPC
 
 
 def _tracking(**kw: Any) -> Controller:
@@ -36,6 +39,10 @@ CONTROLLERS: dict[str, Callable[..., Controller]] = {
     "mpc": PointMassMPC,
     "sempc": MultiCarMPC,
     "mpc000": _mpc000,
+    "rmpc": TubeMPC,
+    "rsmpc": RobustSelfTriggeredMPC,
+    "adaptive_mpc": AdaptiveCruiseMPC,
+    "mpc002": NominalCruiseMPC,
 }
 
 
@@ -57,6 +64,7 @@ def make_controller(name: str, scenario: Any = None, **params: float) -> Control
 
 __all__ = [
     "AFSMCController",
+    "AdaptiveCruiseMPC",
     "CONTROLLERS",
     "ControlContext",
     "Controller",
@@ -64,8 +72,11 @@ __all__ = [
     "FuzzyPIDController",
     "Observation",
     "MultiCarMPC",
+    "NominalCruiseMPC",
     "PIDController",
     "PointMassMPC",
+    "RobustSelfTriggeredMPC",
+    "TubeMPC",
     "TunableParam",
     "list_controllers",
     "make_controller",

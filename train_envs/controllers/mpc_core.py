@@ -511,6 +511,7 @@ class _Backend:
         except ValueError as exc:
             raise ValueError(f"osqp_settings rejected by OSQP: {exc}") from exc
         self.polishing = bool(settings.get("polishing", False))
+        self.rho0 = float(settings.get("rho", 0.1))  # OSQP's default initial rho
         self._status_names: dict[int, str] = {}
         raw = getattr(self.prob, "_solver", None)
         needed = ("update_data_vec", "update_data_mat", "warm_start", "solve", "solution", "info")
@@ -639,6 +640,10 @@ class LinearMPC:
             see :meth:`_rescue`).
         form: ``"condensed"``, ``"sparse"`` or ``"auto"`` (default; condensed for
             ``Nc*m <= 20``, see the module docstring).
+        stage_scales: optional per-stage weight multipliers ``{"Q": (Np,), "R": (Nc,),
+            "S": (Np,)}`` (entries >= 0; missing keys = 1): the cost terms of stage
+            ``i`` are multiplied by ``c_i`` -- time-varying weights, e.g. the ``1/beta``
+            weighting of the held stages of self-triggered MPC.
     """
 
     def __init__(
@@ -676,6 +681,7 @@ class LinearMPC:
         warm_start: str = "shift",
         rescue: bool = True,
         form: str = "auto",
+        stage_scales: Mapping[str, ArrayLike] | None = None,
     ) -> None:
         # ---- model ---------------------------------------------------------
         A_, B_, C_ = self._check_model(A, B, C, None)
@@ -741,6 +747,7 @@ class LinearMPC:
             settings[_RENAMED_SETTINGS.get(k, k)] = v
         self.osqp_settings = settings
 
+        self._stage_scales = self._check_stage_scales(stage_scales)
         self._layout()
         self._build()
         P0 = sp.csc_matrix(
@@ -1156,16 +1163,21 @@ class LinearMPC:
         # weighted residuals e = Ez z + Eth theta (condensed), weights W ------------------
         Ez_parts = [Sy, self._Dz]
         Eth_parts = [Yth - sel("r", nt), dUth]
-        W_parts = [np.kron(np.eye(Np), self._Q), np.kron(np.eye(Nc), self._R)]
+        # per-stage weight scales (``stage_scales``; identity by default)
+        sQ, sR, sS = self._stage_scales
+        DQ = np.eye(Np) if sQ is None else np.diag(sQ)
+        DR = np.eye(Nc) if sR is None else np.diag(sR)
+        DS = np.eye(Np) if sS is None else np.diag(sS)
+        W_parts = [np.kron(DQ, self._Q), np.kron(DR, self._R)]
         L_parts = [
-            np.kron(np.eye(Np), _psd_sqrt(self._Q)),
-            np.kron(np.eye(Nc), _psd_sqrt(self._R)),
+            np.kron(np.sqrt(DQ), _psd_sqrt(self._Q)),
+            np.kron(np.sqrt(DR), _psd_sqrt(self._R)),
         ]
         if self._S is not None:
             Ez_parts.append(Tz)
             Eth_parts.append(Uth - sel("ur", nt))
-            W_parts.append(np.kron(np.eye(Np), self._S))
-            L_parts.append(np.kron(np.eye(Np), _psd_sqrt(self._S)))
+            W_parts.append(np.kron(DS, self._S))
+            L_parts.append(np.kron(np.sqrt(DS), _psd_sqrt(self._S)))
         if self._P is not None:
             if self.terminal == "state":
                 Ez_parts.append(Sx[-n:])
@@ -1346,6 +1358,19 @@ class LinearMPC:
         self._plan_age = 0
         self._u_last: np.ndarray | None = None
 
+    def reset_solver(self) -> None:
+        """:meth:`reset` plus OSQP's own state: initial ``rho`` and a zero iterate.
+
+        OSQP keeps its adapted ``rho`` (and, without a warm start, its last iterate)
+        between solves; after this call identical data give identical solutions, so a
+        controller can keep one QP across episodes and stay reproducible per seed
+        (costs one KKT refactorisation).
+        """
+        self.reset()
+        be = self._backend
+        be.prob.update_settings(rho=be.rho0)
+        be.warm_start(np.zeros(self._nv), np.zeros(self._nA))
+
     def set_weights(
         self,
         *,
@@ -1355,8 +1380,11 @@ class LinearMPC:
         P: ArrayLike | None = None,
         soft_penalty: float | Mapping[str, float | ArrayLike] | None = None,
         soft_quadratic: float | None = None,
+        stage_scales: Mapping[str, ArrayLike] | None = None,
     ) -> None:
         """Change cost weights (``None`` keeps a weight); matrix values are updated in OSQP.
+
+        ``stage_scales`` replaces the per-stage multipliers (see the constructor).
 
         ``S`` / ``P`` can only be changed if they were given at construction (pass zeros
         to reserve them).  ``soft_penalty`` may change finite values but cannot turn a
@@ -1372,6 +1400,7 @@ class LinearMPC:
         dimP = self.n if self.terminal == "state" else self.p
         P_ = self._P if P is None else _weight("P", P, dimP)
         g_ = self._gamma if soft_quadratic is None else self._check_gamma(soft_quadratic)
+        scales = None if stage_scales is None else self._check_stage_scales(stage_scales)
         new_rho = None
         if soft_penalty is not None:
             _check_penalty_arg(soft_penalty)
@@ -1387,6 +1416,8 @@ class LinearMPC:
                 parts.append(rho_g)
             new_rho = parts
         self._Q, self._R, self._S, self._P, self._gamma = Q_, R_, S_, P_, g_
+        if scales is not None:
+            self._stage_scales = scales
         if new_rho is not None:
             for g, rho_g in zip(self._groups, new_rho, strict=True):
                 g.rho = rho_g
@@ -1404,6 +1435,114 @@ class LinearMPC:
         self._A, self._B, self._C = A_, B_, C_
         self._build()
         self._push_matrices()
+
+    def _check_stage_scales(
+        self, stage_scales: Mapping[str, ArrayLike] | None
+    ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """Validate ``stage_scales`` -> (Q (Np,), R (Nc,), S (Np,)) multipliers or None."""
+        if stage_scales is None:
+            return (None, None, None)
+        if not isinstance(stage_scales, Mapping) or set(stage_scales) - {"Q", "R", "S"}:
+            raise ValueError(
+                "stage_scales must be a mapping with keys among 'Q', 'R', 'S', "
+                f"got {stage_scales!r}"
+            )
+        out = []
+        for name, dim in (("Q", self.Np), ("R", self.Nc), ("S", self.Np)):
+            val = stage_scales.get(name)
+            if val is None:
+                out.append(None)
+                continue
+            v = _vector(f"stage_scales[{name!r}]", val, dim)
+            if np.any(v < 0):
+                raise ValueError(f"stage_scales[{name!r}] must be >= 0, got {v}")
+            out.append(v)
+        return out[0], out[1], out[2]
+
+    def set_base_bounds(
+        self,
+        *,
+        u_min: ArrayLike | None = None,
+        u_max: ArrayLike | None = None,
+        y_min: ArrayLike | None = None,
+        y_max: ArrayLike | None = None,
+        h_N: ArrayLike | None = None,
+    ) -> None:
+        """Replace construction-time bounds until the next call (cheap: no matrix update).
+
+        ``u_min`` / ``u_max``: per-stage input box ``(Nc, m)`` (or ``(m,)``, held), e.g.
+        equal bounds to fix inputs (move blocking); ``y_min`` / ``y_max``: per-stage
+        output box ``(Np, p)`` (values of rows dropped at construction are ignored); ``h_N``:
+        offsets ``(r,)`` of the terminal polyhedron ``H_N x_Np <= h_N`` given at
+        construction (rows that were infinite there stay dropped).  ``None`` leaves a
+        bound as it is; per-call bounds of :meth:`solve` still override these for one
+        call.  Setting all per-step bounds here and calling :meth:`solve` without
+        overrides is the cheapest way to move them every step.  The first
+        input is still clipped to the construction-time box and rate window after the
+        solve, so stage-0 input bounds should stay inside them; when the previous input
+        lies outside the box with rate limits, the reachable-box relaxation of
+        :meth:`solve` replaces the stage input bounds for that call.
+        """
+        Nc, m = self.Nc, self.m
+        lo0, hi0 = self._Lb0, self._Ub0
+        r0, nu = self._r0, self._nz
+        groups = self.__dict__.get("_base_groups")
+        if groups is None:
+            groups = self._base_groups = {g.name: g for g in self._groups}
+        if u_min is not None or u_max is not None:
+            new = [lo0[r0 : r0 + nu].copy(), hi0[r0 : r0 + nu].copy()]
+            for name, val, side in (("u_min", u_min, 0), ("u_max", u_max, 1)):
+                if val is None:
+                    continue
+                try:
+                    arr = np.broadcast_to(np.asarray(val, dtype=float), (Nc, m))
+                except ValueError:
+                    raise ValueError(
+                        f"set_base_bounds(): {name} must have shape ({Nc}, {m}) or ({m},), "
+                        f"got {np.shape(val)}"
+                    ) from None
+                if np.isnan(arr).any():
+                    raise ValueError(f"set_base_bounds(): {name} must not contain NaN")
+                new[side] = np.clip(arr, -_BIG, _BIG).ravel()
+            if np.any(new[0] > new[1]):
+                raise ValueError("set_base_bounds(): u_min must not exceed u_max at any stage")
+            lo0[r0 : r0 + nu], hi0[r0 : r0 + nu] = new
+        if y_min is not None or y_max is not None:  # called every step: keep it lean
+            g = groups.get("y")
+            if g is None:
+                raise ValueError("set_base_bounds(): y bounds given but no y box at construction")
+            for name, val, pos in (("y_min", y_min, g.lb_pos), ("y_max", y_max, g.ub_pos)):
+                if val is None:
+                    continue
+                arr = val if type(val) is np.ndarray else np.asarray(val, dtype=float)
+                if arr.shape != (self.Np, self.p):
+                    try:
+                        arr = np.broadcast_to(arr, (self.Np, self.p))
+                    except ValueError:
+                        raise ValueError(
+                            f"set_base_bounds(): {name} must have shape ({self.Np}, {self.p}) "
+                            f"or ({self.p},), got {np.shape(val)}"
+                        ) from None
+                vals = arr[:, g.cols]
+                tot = float(vals.sum())
+                if tot != tot and np.isnan(vals).any():  # (+inf + -inf is NaN too)
+                    raise ValueError(f"set_base_bounds(): {name} must not contain NaN")
+                ok = pos >= 0
+                vals = np.minimum(np.maximum(vals[ok], -_BIG), _BIG)
+                (lo0 if name == "y_min" else hi0)[pos[ok]] = vals
+        if h_N is not None:  # called every step by terminal sets that move: keep it lean
+            g = groups.get("H_N")
+            if g is None:
+                raise ValueError("set_base_bounds(): h_N given but H_N was not set at construction")
+            h = h_N if type(h_N) is np.ndarray else np.asarray(h_N, dtype=float)
+            if h.shape != (g.dim_full,):
+                raise ValueError(f"set_base_bounds(): h_N must have shape ({g.dim_full},)")
+            h = h[g.cols]
+            lo_h = float(h.min()) if h.size else 0.0
+            if lo_h != lo_h or lo_h == -np.inf:
+                raise ValueError("set_base_bounds(): h_N must not contain NaN or -inf")
+            hi0[g.ub_pos[0]] = np.minimum(h, _BIG)
+        self._bounds_dirty = True
 
     def gain_unconstrained(self) -> UnconstrainedGain:
         """First-move gain of the unconstrained problem from the condensed normal equations.
@@ -1687,6 +1826,7 @@ class LinearMPC:
     ) -> bool:
         """Write per-call bounds into the working bound vectors; False if they contain NaN."""
         Lb, Ub = self._Lb, self._Ub
+        cache = self.__dict__.setdefault("_bounds_cache", {})
         self._LUb[...] = self._LUb0
         self._bounds_dirty = True
         if relax:
@@ -1706,32 +1846,44 @@ class LinearMPC:
         ):
             if val is None:
                 continue
-            label = {"lo": "y_min", "hi": "y_max"}[side] if name == "y" else "h" + name[1:]
-            g = next((g for g in self._groups if g.name == name), None)
-            arr = np.asarray(val, dtype=float)
+            # per-group constants (group, dropped rows) cached on first use: this runs
+            # every step of every per-stage-bounded MPC
+            cached = cache.get(name)
+            if cached is None:
+                g = next((g for g in self._groups if g.name == name), None)
+                dropped = None if g is None else np.setdiff1d(np.arange(g.dim_full), g.cols)
+                cached = cache[name] = (
+                    g,
+                    dropped if dropped is not None and dropped.size else None,
+                )
+            g, dropped = cached
+            arr = val if type(val) is np.ndarray else np.asarray(val, dtype=float)
             if g is not None:
                 dim = g.dim_full
             elif name == "y":
                 dim = self.p
             else:
                 dim = arr.shape[-1] if arr.ndim else 1
-            try:
-                arr = np.broadcast_to(arr, (self.Np, dim))
-            except ValueError:
-                raise ValueError(
-                    f"solve(): {label} must have shape ({self.Np}, {dim}) or ({dim},), "
-                    f"got {arr.shape}"
-                ) from None
-            if np.isnan(arr).any():
+            if arr.shape != (self.Np, dim):
+                try:
+                    arr = np.broadcast_to(arr, (self.Np, dim))
+                except ValueError:
+                    label = {"lo": "y_min", "hi": "y_max"}[side] if name == "y" else "h" + name[1:]
+                    raise ValueError(
+                        f"solve(): {label} must have shape ({self.Np}, {dim}) or ({dim},), "
+                        f"got {arr.shape}"
+                    ) from None
+            total = arr.sum()
+            if total != total and np.isnan(arr).any():  # a sum of +inf and -inf is NaN too
                 return False
+            label = {"lo": "y_min", "hi": "y_max"}[side] if name == "y" else "h" + name[1:]
             if g is None:
                 if np.isfinite(arr).any():
                     raise ValueError(
                         f"solve(): {label} given but no {name} constraint was set at construction"
                     )
                 continue
-            dropped = np.setdiff1d(np.arange(dim), g.cols)
-            if dropped.size and np.isfinite(arr[:, dropped]).any():
+            if dropped is not None and np.isfinite(arr[:, dropped]).any():
                 raise ValueError(
                     f"solve(): {label} has finite values in rows {dropped.tolist()} that were "
                     "unconstrained at construction"

@@ -1,0 +1,339 @@
+"""Paper 001's tube robust MPC ("rmpc") and robust self-triggered MPC ("rsmpc").
+
+Properties checked: the tube (support-function tightening) is exact and grows with the
+stage, W = {0} gives the nominal MPC, the terminal weight solves eq. (19), both
+controllers stop inside the ±0.5 m window for N = 3, 5, 10, 15 under disturbances
+drawn from W without overspeed or overrun, self-triggering switches less, the core
+features the RSMPC needs (per-stage weight scales, per-stage input bounds, solver
+reset) behave, and bad input raises ValueError.
+"""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from train_envs.controllers import make_controller
+from train_envs.controllers.mpc_core import LinearMPC
+from train_envs.controllers.rsmpc import RobustSelfTriggeredMPC
+from train_envs.controllers.tube_mpc import (
+    ROW_DU,
+    ROW_S,
+    ROW_U,
+    ROW_V,
+    TubeMPC,
+    stopping_model,
+    terminal_weight,
+    tube_feedback,
+    tube_tightening,
+)
+from train_envs.scenarios import DisturbanceSpec, get_scenario
+from train_envs.simulation import ClosedLoop, simulate
+
+W_BAR = 0.05
+HORIZONS = (3, 5, 10, 15)
+SEEDS = (0, 1)
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return get_scenario("paper001_stopping").with_overrides(
+        disturbance=DisturbanceSpec(random_bound_mps2=W_BAR)
+    )
+
+
+@pytest.fixture(scope="module")
+def runs(scenario):
+    """Closed loops of both controllers for every horizon and seed (controllers reused)."""
+    out = {}
+    for N in HORIZONS:
+        for name in ("rmpc", "rsmpc"):
+            ctrl = make_controller(name, scenario, N=N)
+            for seed in SEEDS:
+                out[name, N, seed] = simulate(scenario, ctrl, seed=seed)
+    return out
+
+
+@pytest.fixture(scope="module")
+def model():
+    return stopping_model(0.2, 0.4, 5)
+
+
+# ------------------------------------------------------------------------- tube
+def _tube_brute_force(model, fb, n, hold):
+    """max_w hᵀe_i over every vertex of W^(l+i): error recursion of the (held) tube."""
+    A, Acl, E, l = model.A, fb.A_cl, model.E[:, 0], model.delay_steps  # noqa: E741
+    H = np.vstack([np.eye(4)[0], np.eye(4)[1], np.eye(4)[3], fb.K])
+    e_t = np.linalg.matrix_power(A, l) @ E
+    out = np.zeros((n + 1, 4))
+    for i in range(1, n + 1):
+        best = np.zeros(4)
+        for signs in itertools.product((-1.0, 1.0), repeat=l + i):
+            d = np.zeros(4)  # dead-time error: open loop, l steps
+            for w in signs[:l]:
+                d = A @ d + E * w
+            e = np.zeros(4)  # plan-to-plan error: open loop while held, then A_cl
+            for j, w in enumerate(signs[l:]):
+                e = (A if j < hold else Acl) @ e + e_t * w
+            val = H @ e
+            val[:2] += (H @ d)[:2]
+            best = np.maximum(best, val)
+        out[i] = best
+    return out
+
+
+@pytest.mark.parametrize("hold", [1, 3])
+def test_support_function_tightening_is_exact(model, hold):
+    fb = tube_feedback(model, 10.0, 30.0, 10.0)
+    n = 4
+    T = tube_tightening(model, fb, n, hold)
+    np.testing.assert_allclose(T, _tube_brute_force(model, fb, n, hold), rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("N", HORIZONS)
+def test_tightened_sets_shrink_monotonically(model, N):
+    fb = tube_feedback(model, 10.0, 30.0, 10.0)
+    T = tube_tightening(model, fb, N + 25, 1)
+    assert np.all(T[0] == 0.0)
+    assert np.all(np.diff(T, axis=0) >= -1e-15)  # X_{i+1} ⊆ X_i for the tube MPC
+    for M in range(2, N):  # self-triggered tubes: open loop while the command is held
+        TM = tube_tightening(model, fb, N + M, M)
+        assert np.all(np.diff(TM[: M + 1], axis=0) >= -1e-15)
+        assert np.all(TM[1 : M + 1, :2] >= T[1 : M + 1, :2] - 1e-15)  # no feedback: wider
+    assert T[1, ROW_U] == 0.0 and T[1, ROW_DU] > 0.0  # the first command is exact
+
+
+@pytest.mark.parametrize("fw", [(10.0, 30.0, 10.0), "cost"])
+def test_terminal_weight_solves_eq19(scenario, fw):
+    c = TubeMPC(scenario, N=5, feedback_weights=fw, q_s=2.0, q_v=40.0, r_du=5.0)
+    c.reset(scenario.control_context())
+    fb = c._feedback()
+    P = c.terminal_weight()
+    Qx = np.diag([2.0, 40.0, 0.0, 0.0])
+    K = fb.K.reshape(1, 4)
+    resid = fb.A_cl.T @ P @ fb.A_cl - P + Qx + 5.0 * K.T @ K
+    assert np.max(np.abs(resid)) <= 1e-8 * np.max(np.abs(P))
+    assert np.max(np.abs(np.linalg.eigvals(fb.A_cl))) < 1.0
+    assert np.min(np.linalg.eigvalsh(P - Qx)) > -1e-9 * np.max(np.abs(P))  # core weight PSD
+    if fw == "cost":  # K is the LQR gain of the cost: P is its Riccati solution
+        np.testing.assert_allclose(P, fb.P_lqr, rtol=1e-7, atol=1e-9 * np.abs(P).max())
+    with pytest.raises(ValueError, match="Schur"):
+        terminal_weight(2.0 * np.eye(4), fb.K, Qx, 1.0)
+
+
+# ------------------------------------------------------------------ closed loop
+def test_zero_disturbance_set_gives_the_nominal_mpc(scenario):
+    a = simulate(scenario, TubeMPC(scenario, N=5, w_scale=0.0), seed=3)
+    b = simulate(scenario, TubeMPC(scenario, N=5, tighten=False), seed=3)
+    np.testing.assert_array_equal(a.df["u_cmd_N"].to_numpy(), b.df["u_cmd_N"].to_numpy())
+    c = simulate(scenario, TubeMPC(scenario, N=5), seed=3)
+    assert not np.array_equal(a.df["u_cmd_N"].to_numpy(), c.df["u_cmd_N"].to_numpy())
+
+
+def test_nominal_plant_stops_within_a_few_centimetres():
+    sc = get_scenario("paper001_stopping")
+    for name in ("rmpc", "rsmpc"):
+        m = simulate(sc, name, seed=0).metrics
+        assert abs(m["stop_error_m"]) < 0.05, (name, m["stop_error_m"])
+
+
+@pytest.mark.parametrize("N", HORIZONS)
+def test_both_stop_in_the_window_for_every_horizon(runs, N):
+    for name in ("rmpc", "rsmpc"):
+        for seed in SEEDS:
+            m = runs[name, N, seed].metrics
+            assert m["stopped"] == 1.0
+            assert abs(m["stop_error_m"]) <= 0.5, (name, N, seed, m["stop_error_m"])
+            assert m["fallback_fraction"] == 0.0
+
+
+def test_constraints_hold_in_closed_loop(runs, scenario):
+    allowance = scenario.extra["stop_window_m"]
+    for key, res in runs.items():
+        df = res.df
+        assert np.all(df["v_mps"] <= df["v_limit_mps"] + 1e-9), key  # no overspeed
+        assert df["s_m"].max() <= scenario.s_stop_m + allowance, key  # no overrun
+        assert res.metrics["saturated_fraction"] == 0.0, key  # inside the envelope
+        rate = np.abs(np.diff(df["u_cmd_N"].to_numpy())) / scenario.train.inertial_mass_kg
+        assert rate.max() <= 1.0 * scenario.dt_ctrl_s + 1e-9, key  # jerk_max 1 m/s³
+
+
+@pytest.mark.parametrize("N", HORIZONS)
+def test_self_triggering_switches_less(runs, N):
+    for seed in SEEDS:
+        rs = runs["rsmpc", N, seed]
+        rm = runs["rmpc", N, seed]
+        assert rs.metrics["command_switches"] < rm.metrics["command_switches"]
+        trig = rs.df["triggered"].dropna().to_numpy()
+        # between triggers the command is held exactly (eq. 23)
+        u = rs.df["u_cmd_N"].to_numpy()[: trig.size]
+        held = trig[1:] == 0
+        np.testing.assert_array_equal(u[1:][held], u[:-1][held])
+        assert rs.metrics["command_switches"] <= trig.sum()
+
+
+def test_rsmpc_info_and_hold_bookkeeping(scenario):
+    c = RobustSelfTriggeredMPC(scenario, N=5)
+    loop = ClosedLoop(scenario, c)
+    loop.reset(seed=4)
+    left = 0
+    n_trig = 0
+    while not loop.done:
+        info = loop.step()
+        if left == 0:
+            assert info["triggered"] and 1 <= info["hold_steps"] <= c.M_max
+            assert info["qp_solves"] >= 1
+            n_trig += 1
+            left = info["hold_steps"] - 1
+        else:
+            assert not info["triggered"] and info["qp_solves"] == 0
+            left -= 1
+        assert info["triggers"] == n_trig
+
+
+def test_set_params_between_steps_and_reproducibility(scenario):
+    c = RobustSelfTriggeredMPC(scenario, N=5)
+    loop = ClosedLoop(scenario, c)
+    loop.reset(seed=2)
+    P0 = c.terminal_weight()
+    for k in range(60):
+        if k == 20:
+            c.set_params(q_v=80.0, beta=6.0, w_scale=2.0)
+            assert not np.allclose(c.terminal_weight(), P0)
+        if k == 40:
+            c.set_params(q_s=0.5, w_scale=0.5, beta=1.2)
+        loop.step()
+    prob = c._problems[1]
+    assert prob.w_bar == pytest.approx(0.5 * W_BAR)
+    assert prob.weights_key == c._weights_key()
+    while not loop.done:
+        loop.step()
+    assert abs(loop.plant.s - scenario.s_stop_m) <= 0.5
+    # the same seed twice with the same controller object gives the same run
+    c2 = TubeMPC(scenario, N=5)
+    r1 = simulate(scenario, c2, seed=7)
+    r2 = simulate(scenario, c2, seed=7)
+    np.testing.assert_array_equal(r1.df["u_cmd_N"].to_numpy(), r2.df["u_cmd_N"].to_numpy())
+
+
+# --------------------------------------------------------------- core features
+def _small_mpc(**kw):
+    A = np.array([[1.0, 0.1], [0.0, 1.0]])
+    B = np.array([[0.005], [0.1]])
+    kw.setdefault("osqp_settings", {"eps_abs": 1e-9, "eps_rel": 1e-9})
+    return LinearMPC(A, B, Np=6, Q=[1.0, 0.1], R=0.01, u_min=-1.0, u_max=1.0, **kw)
+
+
+def test_core_stage_scales_and_stage_input_bounds():
+    x0, up, r = np.array([1.0, 0.0]), np.zeros(1), np.zeros(2)
+    base = _small_mpc().solve(x0, up, r)
+    ones = _small_mpc(stage_scales={"Q": np.ones(6), "R": np.ones(6)}).solve(x0, up, r)
+    np.testing.assert_allclose(ones.U, base.U, atol=1e-9)
+    # scaling every stage by c is the weight c Q: same plan
+    mpc = _small_mpc()
+    mpc.set_weights(stage_scales={"Q": np.full(6, 3.0), "R": np.full(6, 3.0)})
+    np.testing.assert_allclose(mpc.solve(x0, up, r).U, base.U, atol=1e-7)
+    # per-stage input bounds: inputs 1..3 fixed (move blocking), the rest free
+    mpc = _small_mpc()
+    lo = np.full((6, 1), -1.0)
+    hi = np.full((6, 1), 1.0)
+    lo[1:4] = hi[1:4] = 0.25
+    mpc.set_base_bounds(u_min=lo, u_max=hi)
+    sol = mpc.solve(x0, up, r)
+    np.testing.assert_allclose(sol.U[1:4, 0], 0.25, atol=1e-6)
+    assert not np.allclose(sol.U[4:, 0], 0.25)
+    with pytest.raises(ValueError, match="u_min"):
+        mpc.set_base_bounds(u_min=np.zeros((3, 1)))
+    with pytest.raises(ValueError, match="exceed"):
+        mpc.set_base_bounds(u_min=np.full(1, 2.0))
+    with pytest.raises(ValueError, match="h_N"):
+        mpc.set_base_bounds(h_N=[1.0])
+    with pytest.raises(ValueError, match="stage_scales"):
+        _small_mpc(stage_scales={"Q": -np.ones(6)})
+    with pytest.raises(ValueError, match="stage_scales"):
+        _small_mpc(stage_scales={"X": np.ones(6)})
+
+
+def test_core_base_output_bounds_equal_per_call_bounds():
+    x0, up, r = np.array([1.0, 0.5]), np.zeros(1), np.zeros(2)
+    y_max = np.column_stack([np.linspace(1.2, 0.9, 6), np.full(6, 0.4)])
+    a = _small_mpc(y_max=[10.0, 10.0]).solve(x0, up, r, y_max=y_max)
+    mpc = _small_mpc(y_max=[10.0, 10.0])
+    mpc.set_base_bounds(y_max=y_max)
+    b = mpc.solve(x0, up, r)
+    np.testing.assert_allclose(b.U, a.U, atol=1e-9)
+    assert b.Y[:, 1].max() <= 0.4 + 1e-6
+    with pytest.raises(ValueError, match="y_max"):
+        mpc.set_base_bounds(y_max=np.zeros((2, 2)))
+
+
+def test_core_reset_solver_reproduces_the_first_solve():
+    mpc = _small_mpc(y_max=[0.8, 10.0])
+    x0, up, r = np.array([1.0, 0.0]), np.zeros(1), np.zeros(2)
+    first = mpc.solve(x0, up, r)
+    for _ in range(5):
+        mpc.solve(x0 * 0.5, up, r)
+    mpc.reset_solver()
+    again = mpc.solve(x0, up, r)
+    np.testing.assert_array_equal(first.U, again.U)
+    assert first.iterations == again.iterations
+
+
+# ------------------------------------------------------------------ validation
+@pytest.mark.parametrize(
+    ("factory", "kw", "match"),
+    [
+        (TubeMPC, {"N": 0}, "N must"),
+        (TubeMPC, {"N": 2.5}, "N must"),
+        (TubeMPC, {"w_bound_mps2": -0.1}, "w_bound_mps2"),
+        (TubeMPC, {"feedback_weights": (1.0, 0.0, 1.0)}, "feedback_weights q_v"),
+        (TubeMPC, {"feedback_weights": "lqr"}, "feedback_weights"),
+        (TubeMPC, {"jerk_max": 0.0}, "jerk_max"),
+        (TubeMPC, {"terminal_steps": (0, 3)}, "terminal_steps"),
+        (TubeMPC, {"overrun_allowance_m": -1.0}, "overrun_allowance_m"),
+        (TubeMPC, {"w_scale": -0.5}, "w_scale"),
+        (TubeMPC, {"beta": 2.0}, "beta"),
+        (RobustSelfTriggeredMPC, {"N": 1}, "N must"),
+        (RobustSelfTriggeredMPC, {"beta": 0.5}, "beta"),
+        (RobustSelfTriggeredMPC, {"search": "random"}, "search"),
+    ],
+)
+def test_bad_parameters_raise(factory, kw, match):
+    with pytest.raises(ValueError, match=match):
+        factory(**kw)
+
+
+def test_bad_set_params_raise_and_keep_the_old_value():
+    c = RobustSelfTriggeredMPC(N=4)
+    with pytest.raises(ValueError, match=r"param q_v must lie in"):
+        c.set_params(q_v=1e9)
+    with pytest.raises(ValueError, match="has no tunable parameter"):
+        c.set_params(gamma=1.0)
+    assert c.get_params()["q_v"] == 20.0
+    with pytest.raises(ValueError, match="delay_steps"):
+        stopping_model(0.2, 0.4, -1)
+    with pytest.raises(ValueError, match="dt_s"):
+        stopping_model(0.0, 0.4, 1)
+
+
+def test_rows_are_ordered_as_documented():
+    assert (ROW_S, ROW_V, ROW_U, ROW_DU) == (0, 1, 2, 3)
+
+
+def test_hold_searches_agree(scenario):
+    """Warm start, bisection and the exact downward scan pick (nearly) the same holds."""
+    res, qps = {}, {}
+    for search in ("warm", "bisect", "linear"):
+        c = RobustSelfTriggeredMPC(scenario, N=6, search=search)
+        loop = ClosedLoop(scenario, c)
+        loop.reset(seed=5)
+        qps[search] = 0
+        while not loop.done:
+            qps[search] += loop.step()["qp_solves"]
+        res[search] = loop.metrics()
+    lin = res["linear"]
+    for search in ("warm", "bisect"):
+        m = res[search]
+        assert abs(m["stop_error_m"] - lin["stop_error_m"]) < 0.05
+        assert abs(m["command_switches"] - lin["command_switches"]) <= 0.1 * lin["command_switches"]
+        assert qps[search] < qps["linear"]
