@@ -80,3 +80,24 @@ def distribute(
         du = ctx.du_max_Nps * ctx.dt_s
         u = np.clip(u, prev - du, prev + du)
     return u
+
+
+def per_car_davis(
+    train: TrainParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-car masses and Davis coefficients of an n-car model.
+
+    Returns ``(m, m', a, b, c)``: car masses, inertial masses ``m (1 + ρ)``, and the
+    Davis coefficients split by mass share — except the aerodynamic ``c``, which sits
+    on the lead car alone when ``train.lead_car_aero`` (papers 002/003), else is split
+    by mass share too (paper 000's per-car resistance).
+    """
+    m = np.asarray(train.car_masses, float)
+    mi = m * (1.0 + train.rotating_mass_factor)
+    share = m / m.sum()
+    if train.lead_car_aero:
+        c = np.zeros(m.size)
+        c[0] = train.davis_c_Ns2_per_m2
+    else:
+        c = train.davis_c_Ns2_per_m2 * share
+    return m, mi, train.davis_a_N * share, train.davis_b_Ns_per_m * share, c

@@ -127,6 +127,7 @@ from typing import Any
 
 import numpy as np
 
+from train_envs.controllers._common import per_car_davis
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
 from train_envs.controllers.train_mpc import zoh
@@ -487,16 +488,7 @@ class AdaptiveCruiseMPC(Controller):
                 f"n_inputs == n_cars), got n_cars={n}, n_inputs={ctx.n_inputs}"
             )
         self._n, self._nx = n, 2 * n - 1
-        self._m = np.asarray(tr.car_masses, float)
-        self._mi = self._m * (1.0 + tr.rotating_mass_factor)
-        share = self._m / self._m.sum()
-        self._ca = tr.davis_a_N * share
-        self._cb = tr.davis_b_Ns_per_m * share
-        if tr.lead_car_aero:
-            self._cc = np.zeros(n)
-            self._cc[0] = tr.davis_c_Ns2_per_m2
-        else:
-            self._cc = tr.davis_c_Ns2_per_m2 * share
+        self._m, self._mi, self._ca, self._cb, self._cc = per_car_davis(tr)
         self._k = tr.coupler.stiffness_N_per_m
         self._damping = tr.coupler.damping_Ns_per_m
         self._spacing = tr.coupler.rest_length_m

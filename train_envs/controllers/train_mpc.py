@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import expm, solve_discrete_are
 
-from train_envs.controllers._common import distribute, input_shares
+from train_envs.controllers._common import distribute, input_shares, per_car_davis
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.mpc_core import LinearMPC
 from train_envs.plants.lookup import gradient_table
@@ -234,7 +234,6 @@ class PointMassMPC(_TrainMPCBase):
             C = self._C
             _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R)
         return Q, R, P
-
 
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)
@@ -481,7 +480,6 @@ class MultiCarMPC(_TrainMPCBase):
             _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R)
         return Q, R, P
 
-
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)
         tr = ctx.train
@@ -491,16 +489,7 @@ class MultiCarMPC(_TrainMPCBase):
                 f"{self.name} needs per-car inputs (n_inputs == n_cars = {n}), got {ctx.n_inputs}"
             )
         self._n = n
-        self._m = np.asarray(tr.car_masses, float)
-        self._mi = self._m * (1.0 + tr.rotating_mass_factor)
-        share = self._m / self._m.sum()
-        self._ca = tr.davis_a_N * share
-        self._cb = tr.davis_b_Ns_per_m * share
-        if tr.lead_car_aero:
-            self._cc = np.zeros(n)
-            self._cc[0] = tr.davis_c_Ns2_per_m2
-        else:
-            self._cc = tr.davis_c_Ns2_per_m2 * share
+        self._m, self._mi, self._ca, self._cb, self._cc = per_car_davis(tr)
         C = np.zeros((2 * n, 2 * n))
         C[0, 0] = 1.0
         for j in range(n - 1):
