@@ -29,6 +29,13 @@ def _mpc000(scenario: Any = None, **kw: Any) -> Controller:
     return MultiCarMPC(scenario, terminal=False, **kw)
 
 
+def _fuzzy_mpc(scenario: Any = None, **kw: Any) -> Controller:
+    """Paper 003's fuzzy constrained predictive controller (imports cvxpy on first use)."""
+    from train_envs.controllers.fuzzy_mpc import FuzzyMPCController
+
+    return FuzzyMPCController(scenario, **kw)
+
+
 #: controller factories by name; each takes keyword tuning parameters
 CONTROLLERS: dict[str, Callable[..., Controller]] = {
     "pid": PIDController,
@@ -39,6 +46,7 @@ CONTROLLERS: dict[str, Callable[..., Controller]] = {
     "mpc": PointMassMPC,
     "sempc": MultiCarMPC,
     "mpc000": _mpc000,
+    "fuzzy_mpc": _fuzzy_mpc,
     "rmpc": TubeMPC,
     "rsmpc": RobustSelfTriggeredMPC,
     "adaptive_mpc": AdaptiveCruiseMPC,
