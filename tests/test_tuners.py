@@ -515,6 +515,8 @@ def test_cli_tune_show_and_outputs(tmp_path, capsys):
     # plots on the stored frame
     df = evaluations_frame(load_study("cli", db))
     res = load_result("cli", db)
+    # a loaded result has no problem object; the parameters come from the stored settings
+    assert res.problem is None and set(res.selected_params) == {"kp", "ki", "kd"}
     for fig in (
         plots.pareto_front_figure(res.evaluations),
         plots.parallel_coordinates_figure(res.evaluations),

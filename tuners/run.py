@@ -262,7 +262,16 @@ class TuneResult:
         """Controller parameters of the selected solution."""
         if self.selected is None:
             return None
-        return self.problem.param_values(np.asarray(self.selected["x"], float))
+        if self.problem is not None:
+            return self.problem.param_values(np.asarray(self.selected["x"], float))
+        # a result loaded from storage has no problem: read the stored settings
+        cfg = load_study(self.study_name, self.storage).user_attrs.get(CONFIG_ATTR) or {}
+        params = {
+            str(k): float(v)
+            for k, v in ((cfg.get("problem") or {}).get("fixed_params") or {}).items()
+        }
+        params.update({n: float(self.selected[n]) for n in cfg.get("param_names") or []})
+        return params
 
     def to_csv(self, path: str | Path) -> Path:
         path = Path(path)
