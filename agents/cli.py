@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -293,15 +292,10 @@ def add_agents_parsers(subparsers: argparse._SubParsersAction) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m agents.cli train ...``)."""
-    parser = argparse.ArgumentParser(prog="train-envs")
-    add_agents_parsers(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args))
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    """``python -m agents.cli ...`` is the ``train-envs`` command (:func:`train_envs.cli.main`)."""
+    from train_envs.cli import main as cli_main
+
+    return cli_main(argv)
 
 
 if __name__ == "__main__":

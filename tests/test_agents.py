@@ -324,7 +324,8 @@ def test_cli_evaluate_accepts_each_driver_kind(runs, tmp_path, capsys):
     # bad input: clear errors, exit code 2
     assert cli_main(["evaluate", "--env", PID_ID, "--episodes", "1"]) == 2
     assert "needs at least one" in capsys.readouterr().err
-    assert cli_main(["evaluate", "--env", PID_ID, "--params", "sqlite:///nope.db:x"]) == 2
+    missing = f"sqlite:///{db.parent / 'nope.db'}:x"
+    assert cli_main(["evaluate", "--env", PID_ID, "--params", missing]) == 2
 
 
 # ---------------------------------------------------------------------- rl-zoo3

@@ -272,15 +272,10 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry (``python -m tuners.cli tune ...``) until train_envs.cli wires it."""
-    parser = argparse.ArgumentParser(prog="train-envs")
-    add_tune_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args))
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    """``python -m tuners.cli ...`` is the ``train-envs`` command (:func:`train_envs.cli.main`)."""
+    from train_envs.cli import main as cli_main
+
+    return cli_main(argv)
 
 
 if __name__ == "__main__":
