@@ -299,6 +299,22 @@ def test_paper002_speed_command_values() -> None:
     assert get_track("paper002").length_m > cmd.length_m
 
 
+def test_paper002_feasible_ramp_stays_within_the_traction_envelope() -> None:
+    from train_envs.trains import get_train
+
+    cmd = paper002_speed_command(ramp_end_s=470.0)
+    assert cmd.v_at_t(435.0) == pytest.approx(55.0)
+    tr = get_train("paper002_crh3")
+    a_ramp = 30.0 / 70.0
+    # available acceleration at the end of the ramp (70 m/s): envelope minus resistance
+    a_avail = (tr.max_traction_N(70.0) - tr.resistance_N(70.0)) / tr.inertial_mass_kg
+    assert a_ramp <= 0.85 * a_avail
+    # Table 2's own ramp is not feasible for this train
+    assert 30.0 / 50.0 > a_avail
+    with pytest.raises(ValueError, match="ramp_end_s"):
+        paper002_speed_command(ramp_end_s=300.0)
+
+
 def test_paper003_speed_command_values() -> None:
     cmd = paper003_speed_command()
     ramp_up = (200.0 - 150.0) * KMH / 0.15

@@ -179,9 +179,9 @@ def summarise_run(df: pd.DataFrame) -> dict[str, float]:
     }
 
 
-def _job(args: tuple[str, int, float | None]) -> tuple[str, int, dict[str, float]]:
-    ctrl, seed, t_max = args
-    return ctrl, seed, summarise_run(run_paper002(ctrl, seed, t_max_s=t_max))
+def _job(args: tuple[str, int, float | None, str]) -> tuple[str, int, dict[str, float]]:
+    ctrl, seed, t_max, scenario = args
+    return ctrl, seed, summarise_run(run_paper002(ctrl, seed, scenario=scenario, t_max_s=t_max))
 
 
 def compare_paper002(
@@ -189,12 +189,15 @@ def compare_paper002(
     *,
     t_max_s: float | None = None,
     workers: int | None = None,
+    scenario: str = "paper002_cruise",
 ) -> pd.DataFrame:
     """Adaptive vs non-adaptive on the same seeds: one row per (controller, seed) + means.
 
     ``workers``: processes (default: ``min(cpu_count, runs)``; 1 = in this process).
+    ``scenario``: ``"paper002_cruise"`` (Table 2's command) or
+    ``"paper002_cruise_feasible"`` (the 40 → 70 m/s ramp within the traction envelope).
     """
-    jobs = [(c, int(s), t_max_s) for s in seeds for c in CONTROLLERS]
+    jobs = [(c, int(s), t_max_s, scenario) for s in seeds for c in CONTROLLERS]
     if workers is None:
         workers = min(os.cpu_count() or 1, len(jobs))
     if workers <= 1:
@@ -240,9 +243,16 @@ SHORT_COLUMNS = {
 def reproduce_paper002(seed: int = 0) -> pd.DataFrame:
     """Adaptive vs non-adaptive MPC on seeds ``seed .. seed+4`` beside 002's claims.
 
+    Run on Table 2's command and on its traction-feasible variant (column ``command``).
+
     Speeds in m/s, forces in kN; ``_unsat`` outside the traction-limited window
     :data:`SATURATED_WINDOW_S`, ``_cruise`` in :data:`CRUISE_WINDOWS_S` (see the module
     docstring). Rows: each (controller, seed), then the seed means and maxima.
     """
-    full = compare_paper002(tuple(range(seed, seed + 5)))
-    return full[list(SHORT_COLUMNS)].rename(columns=SHORT_COLUMNS)
+    parts = []
+    for scenario in ("paper002_cruise", "paper002_cruise_feasible"):
+        full = compare_paper002(tuple(range(seed, seed + 5)), scenario=scenario)
+        part = full[list(SHORT_COLUMNS)].rename(columns=SHORT_COLUMNS)
+        part.insert(0, "command", "Table 2" if scenario == "paper002_cruise" else "feasible")
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
