@@ -15,59 +15,23 @@ command runs.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
+
+from train_envs.cli_args import json_object, key_values, parse_seeds
 
 __all__ = ["add_agents_parsers", "cmd_evaluate", "cmd_train", "parse_seeds"]
 
 
-def parse_seeds(items: list[str] | None) -> list[int] | None:
-    """Seeds as ``0 1 2``, ``0,1,2`` or inclusive ranges ``0-4``."""
-    if not items:
-        return None
-    out: list[int] = []
-    for item in items:
-        for part in str(item).split(","):
-            part = part.strip()
-            if not part:
-                continue
-            try:
-                if "-" in part[1:]:
-                    lo, hi = part.split("-", 1)
-                    out.extend(range(int(lo), int(hi) + 1))
-                else:
-                    out.append(int(part))
-            except ValueError as exc:
-                raise ValueError(f"--seeds: {part!r} is not an integer or a range a-b") from exc
-    return out
-
-
 def _json_arg(text: str | None, flag: str) -> dict[str, Any]:
-    if not text:
-        return {}
-    if text.startswith("@"):
-        text = Path(text[1:]).read_text()
-    try:
-        val = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{flag} must be JSON (or @file.json): {exc}") from exc
-    if not isinstance(val, dict):
-        raise ValueError(f"{flag} must be a JSON object")
-    return val
+    return json_object(text, flag) or {}
 
 
 def _overrides(items: list[str] | None) -> dict[str, Any]:
     """``key=value`` pairs; values are parsed as YAML scalars/flow collections."""
     import yaml
 
-    out: dict[str, Any] = {}
-    for item in items or []:
-        if "=" not in item:
-            raise ValueError(f"--hyperparams expects KEY=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        out[k.strip()] = yaml.safe_load(v)
-    return out
+    return key_values(items, "--hyperparams", yaml.safe_load)
 
 
 # ------------------------------------------------------------------------ train

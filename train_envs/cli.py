@@ -8,18 +8,11 @@ from pathlib import Path
 
 import pandas as pd
 
+from train_envs.cli_args import key_values
+
 
 def _parse_params(items: list[str] | None) -> dict[str, float]:
-    out: dict[str, float] = {}
-    for item in items or []:
-        if "=" not in item:
-            raise ValueError(f"--param expects key=value, got {item!r}")
-        k, v = item.split("=", 1)
-        try:
-            out[k.strip()] = float(v)
-        except ValueError as exc:
-            raise ValueError(f"--param {k}: value {v!r} is not a number") from exc
-    return out
+    return key_values(items, "--param", float, "key=value")
 
 
 def cmd_list(args: argparse.Namespace) -> int:

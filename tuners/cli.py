@@ -13,10 +13,11 @@ sets ``func`` (an ``args -> int`` exit code) on the parsed namespace.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
+
+from train_envs.cli_args import json_object, key_values, parse_seeds
 
 __all__ = ["add_tune_parser", "cmd_show", "cmd_tune", "write_outputs"]
 
@@ -24,47 +25,11 @@ DEFAULT_STORAGE = "sqlite:///tuning.db"  # = tuners.run.DEFAULT_STORAGE (no heav
 
 
 def _config(text: str | None) -> dict[str, Any] | None:
-    if not text:
-        return None
-    if text.startswith("@"):
-        text = Path(text[1:]).read_text()
-    try:
-        cfg = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"--config must be JSON (or @file.json): {exc}") from exc
-    if not isinstance(cfg, dict):
-        raise ValueError("--config must be a JSON object")
-    return cfg
-
-
-def _seeds(items: list[str] | None) -> list[int] | None:
-    """Seeds as ``0 1 2``, ``0,1,2`` or ranges ``0-4``."""
-    if not items:
-        return None
-    out: list[int] = []
-    for item in items:
-        for part in str(item).split(","):
-            part = part.strip()
-            if not part:
-                continue
-            if "-" in part:
-                lo, hi = part.split("-", 1)
-                out.extend(range(int(lo), int(hi) + 1))
-            else:
-                out.append(int(part))
-    return out
+    return json_object(text, "--config")
 
 
 def _constraints(items: list[str] | None) -> dict[str, float] | None:
-    if not items:
-        return None
-    out: dict[str, float] = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--constraint expects METRIC=LIMIT, got {item!r}")
-        k, v = item.split("=", 1)
-        out[k.strip()] = float(v)
-    return out
+    return key_values(items, "--constraint", float, "METRIC=LIMIT") or None
 
 
 def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -216,7 +181,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         storage=args.storage,
         study=args.study,
         resume=args.resume,
-        seeds=_seeds(args.seeds) or [0],
+        seeds=parse_seeds(args.seeds) or [0],
         objectives=args.objectives,
         target_weights=args.target_weights,
         f_bounds=f_bounds,
@@ -237,8 +202,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
     )
     print(show(res.study_name, args.storage))
     if args.holdout_seeds:
-        table = res.compare_on_seeds(_seeds(args.holdout_seeds))
-        print(f"Held-out seeds {_seeds(args.holdout_seeds)}:")
+        table = res.compare_onparse_seeds(parse_seeds(args.holdout_seeds))
+        print(f"Held-out seeds {parse_seeds(args.holdout_seeds)}:")
         print(table.to_string(index=False))
     if args.out:
         for f in write_outputs(res, args.out):
@@ -246,7 +211,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         if args.holdout_seeds and res.selected is not None:
             from train_envs.plotting import speed_distance_figure
 
-            seed = _seeds(args.holdout_seeds)[0]
+            seed = parse_seeds(args.holdout_seeds)[0]
             runs = res.trajectories(seed)
             fig = speed_distance_figure(
                 runs, title=f"{args.env}: defaults vs selected, held-out seed {seed}"

@@ -1,0 +1,63 @@
+"""Argument parsing shared by every ``train-envs`` subcommand (simulate, tune, train, ...)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+
+def parse_seeds(items: list[str] | None, flag: str = "--seeds") -> list[int] | None:
+    """Seeds as ``0 1 2``, ``0,1,2`` or inclusive ranges ``0-4``; ``None`` if none given."""
+    if not items:
+        return None
+    out: list[int] = []
+    for item in items:
+        for part in str(item).split(","):
+            part = part.strip()
+            if not part:
+                continue
+            try:
+                if "-" in part[1:]:
+                    lo, hi = part.split("-", 1)
+                    out.extend(range(int(lo), int(hi) + 1))
+                else:
+                    out.append(int(part))
+            except ValueError as exc:
+                raise ValueError(f"{flag}: {part!r} is not an integer or a range a-b") from exc
+    return out
+
+
+def json_object(text: str | None, flag: str) -> dict[str, Any] | None:
+    """A JSON object given inline or as ``@file.json``; ``None`` if empty."""
+    if not text:
+        return None
+    if text.startswith("@"):
+        text = Path(text[1:]).read_text()
+    try:
+        val = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{flag} must be JSON (or @file.json): {exc}") from exc
+    if not isinstance(val, dict):
+        raise ValueError(f"{flag} must be a JSON object")
+    return val
+
+
+def key_values(
+    items: list[str] | None,
+    flag: str,
+    convert: Callable[[str], Any] = float,
+    form: str = "KEY=VALUE",
+) -> dict[str, Any]:
+    """``KEY=VALUE`` pairs with each value converted; errors name the flag."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ValueError(f"{flag} expects {form}, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = convert(v)
+        except ValueError as exc:
+            raise ValueError(f"{flag} {k}: value {v!r} is not valid ({exc})") from exc
+    return out
