@@ -226,7 +226,6 @@ _SOFT_GROUPS = ("y", "H_y", "H_x", "xN", "H_N")
 # ---------------------------------------------------------------------------
 # results
 # ---------------------------------------------------------------------------
-@dataclass(slots=True)
 class MPCSolution:
     """Result of one :meth:`LinearMPC.solve` call.
 
@@ -258,24 +257,87 @@ class MPCSolution:
         cost: value of the MPC cost (including slack penalties) of the plan.
     """
 
-    u0: np.ndarray
-    du0: np.ndarray
-    U: np.ndarray
-    X: np.ndarray
-    Y: np.ndarray
-    status: str
-    status_val: int
-    iterations: int
-    solve_time_s: float
-    overhead_s: float
-    slack_max: float
-    fallback: bool
-    cost: float
+    __slots__ = (
+        "u0",
+        "du0",
+        "U",
+        "_X",
+        "_Y",
+        "status",
+        "status_val",
+        "iterations",
+        "solve_time_s",
+        "overhead_s",
+        "slack_max",
+        "fallback",
+        "cost",
+        "_traj",
+    )
+
+    def __init__(
+        self,
+        u0: np.ndarray,
+        du0: np.ndarray,
+        U: np.ndarray,
+        X: np.ndarray | None,
+        Y: np.ndarray | None,
+        status: str,
+        status_val: int,
+        iterations: int,
+        solve_time_s: float,
+        overhead_s: float,
+        slack_max: float,
+        fallback: bool,
+        cost: float,
+        traj: Any = None,
+    ) -> None:
+        self.u0, self.du0, self.U, self._X, self._Y = u0, du0, U, X, Y
+        self.status, self.status_val, self.iterations = status, status_val, iterations
+        self.solve_time_s, self.overhead_s = solve_time_s, overhead_s
+        self.slack_max, self.fallback, self.cost = slack_max, fallback, cost
+        # (callable returning (X, Y)): the predictions are assembled only when read
+        self._traj = traj
+
+    def _expand(self) -> None:
+        self._X, self._Y = self._traj()
+        self._traj = None
+
+    @property
+    def X(self) -> np.ndarray:
+        if self._X is None and self._traj is not None:
+            self._expand()
+        return self._X
+
+    @property
+    def Y(self) -> np.ndarray:
+        if self._Y is None and self._traj is not None:
+            self._expand()
+        return self._Y
 
     @property
     def ok(self) -> bool:
         """True when the QP was solved to the requested accuracy."""
         return self.status_val == _SOLVED and not self.fallback
+
+    def __repr__(self) -> str:
+        return (
+            f"MPCSolution(u0={self.u0!r}, status={self.status!r}, iterations={self.iterations}, "
+            f"solve_time_s={self.solve_time_s:.3g}, slack_max={self.slack_max:.3g}, "
+            f"fallback={self.fallback}, cost={self.cost:.6g})"
+        )
+
+
+class _Predictions:
+    """Deferred ``(X, Y)`` of one solve: copies of the QP solution and data it needs."""
+
+    __slots__ = ("mpc", "x", "v")
+
+    def __init__(self, mpc: LinearMPC, x: np.ndarray, v: np.ndarray) -> None:
+        self.mpc, self.x = mpc, x
+        self.v = None if mpc._sparse else v[mpc._sl_traj].copy()
+
+    def __call__(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.mpc._predictions(self.x, self.v)
 
 
 @dataclass(frozen=True)
@@ -454,6 +516,13 @@ def _csc_pattern(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     indptr = np.zeros(mask.shape[1] + 1, dtype=np.int64)
     np.cumsum(np.bincount(cols, minlength=mask.shape[1]), out=indptr[1:])
     return rows, cols, indptr, rows.astype(np.int64)
+
+
+def _bound_label(name: str, side: int) -> str:
+    """User-facing name of a per-call bound (``y_min``, ``y_max``, ``h_y``, ``h_x``)."""
+    if name == "y":
+        return "y_max" if side else "y_min"
+    return "h" + name[1:]
 
 
 class _Group:
@@ -1320,6 +1389,7 @@ class LinearMPC:
         self._sl_c = slice(nv, nv + n_off)
         t0 = nv + n_off
         self._sl_traj = slice(t0, t0 + Wz.shape[0])
+        self._sl_traj_u = slice(t0, t0 + self._ncm)
         self._sl_L = slice(t0 + Wz.shape[0], M.shape[0])
         self._Wz = np.ascontiguousarray(Wz)
         self._Cpinv = np.linalg.pinv(C)
@@ -1349,6 +1419,10 @@ class LinearMPC:
         self._th_up = self._theta[self._slots["up"]]
         self._th_x0 = self._theta[self._slots["x0"]]
         self._th_r = self._theta[self._slots["r"]].reshape(self.Np, self.p)
+        self._th_D = self._theta[self._slots["D"]].reshape(self.Np, self.n)
+        self._shape_D = (self.Np, self.n)
+        if self._has_xN:
+            self._th_xN = self._theta[self._slots["xN"]]
         self._d_dirty = 0  # 0: no d, 1: constant d written, 2: sequence D written
         self._ur_dirty = False
         self._ws_x: np.ndarray | None = None
@@ -1508,10 +1582,10 @@ class LinearMPC:
                 raise ValueError("set_base_bounds(): u_min must not exceed u_max at any stage")
             lo0[r0 : r0 + nu], hi0[r0 : r0 + nu] = new
         if y_min is not None or y_max is not None:  # called every step: keep it lean
-            g = groups.get("y")
+            g, _, cols, lb, ub_pos, _ = self._bounds_entry("y")
             if g is None:
                 raise ValueError("set_base_bounds(): y bounds given but no y box at construction")
-            for name, val, pos in (("y_min", y_min, g.lb_pos), ("y_max", y_max, g.ub_pos)):
+            for name, val in (("y_min", y_min), ("y_max", y_max)):
                 if val is None:
                     continue
                 arr = val if type(val) is np.ndarray else np.asarray(val, dtype=float)
@@ -1523,13 +1597,16 @@ class LinearMPC:
                             f"set_base_bounds(): {name} must have shape ({self.Np}, {self.p}) "
                             f"or ({self.p},), got {np.shape(val)}"
                         ) from None
-                vals = arr[:, g.cols]
+                vals = arr if cols is None else arr[:, cols]
                 tot = float(vals.sum())
                 if tot != tot and np.isnan(vals).any():  # (+inf + -inf is NaN too)
                     raise ValueError(f"set_base_bounds(): {name} must not contain NaN")
-                ok = pos >= 0
-                vals = np.minimum(np.maximum(vals[ok], -_BIG), _BIG)
-                (lo0 if name == "y_min" else hi0)[pos[ok]] = vals
+                vals = np.minimum(np.maximum(vals, -_BIG), _BIG)
+                if name == "y_min":
+                    pos, ok = lb
+                    lo0[pos] = vals if ok is None else vals[ok]
+                else:
+                    hi0[ub_pos] = vals
         if h_N is not None:  # called every step by terminal sets that move: keep it lean
             g = groups.get("H_N")
             if g is None:
@@ -1537,7 +1614,9 @@ class LinearMPC:
             h = h_N if type(h_N) is np.ndarray else np.asarray(h_N, dtype=float)
             if h.shape != (g.dim_full,):
                 raise ValueError(f"set_base_bounds(): h_N must have shape ({g.dim_full},)")
-            h = h[g.cols]
+            cols = self._bounds_entry("H_N")[2]
+            if cols is not None:
+                h = h[cols]
             lo_h = float(h.min()) if h.size else 0.0
             if lo_h != lo_h or lo_h == -np.inf:
                 raise ValueError("set_base_bounds(): h_N must not contain NaN or -inf")
@@ -1635,23 +1714,24 @@ class LinearMPC:
                 ) from None
         if self._has_xN:
             if x_ref_N is None:
-                np.dot(self._Cpinv, th[s["r"]][-self.p :], out=th[s["xN"]])
+                np.dot(self._Cpinv, self._th_r[-1], out=self._th_xN)
             else:
-                th[s["xN"]] = x_ref_N
+                self._th_xN[...] = x_ref_N
         M = self._M_nd
         if d is not None:
-            d_arr = np.asarray(d, dtype=float)
-            if d_arr.shape == (self.n,):
-                th[s["d"]] = d_arr
-                if self._d_dirty == 2:
-                    th[s["D"]] = 0.0
-                self._d_dirty = 1
-            elif d_arr.shape == (self.Np, self.n):
-                th[s["D"]] = d_arr.ravel()
+            d_arr = d if type(d) is np.ndarray else np.asarray(d, dtype=float)
+            shape = d_arr.shape
+            if shape == self._shape_D:
+                self._th_D[...] = d_arr
                 if self._d_dirty == 1:
                     th[s["d"]] = 0.0
                 self._d_dirty = 2
                 M = self._M_full
+            elif shape == (self.n,):
+                th[s["d"]] = d_arr
+                if self._d_dirty == 2:
+                    th[s["D"]] = 0.0
+                self._d_dirty = 1
             else:
                 raise ValueError(
                     f"solve(): d must have shape ({self.n},) or ({self.Np}, {self.n}), "
@@ -1749,17 +1829,13 @@ class LinearMPC:
             return self._fallback(t_start, status, status_val, up, iters, solve_time)
 
         # result ---------------------------------------------------------------------
-        nc_m, npn = self._ncm, self._npn
         if self._sparse:  # states and (absolute) inputs are variables
             U = x[self._oz : self._oe].reshape(self.Nc, self.m)
-            X = x[:npn].reshape(self.Np, self.n)
-            Y = X if self._y_is_x else X @ self._C.T
-        else:
-            traj = np.dot(self._Wz, x[: self._nz])
-            traj += v[self._sl_traj]
-            U = traj[:nc_m].reshape(self.Nc, self.m)
-            X = traj[nc_m : nc_m + npn].reshape(self.Np, self.n)
-            Y = X if self._y_is_x else traj[nc_m + npn :].reshape(self.Np, self.p)
+        else:  # inputs now, predicted states and outputs when read (MPCSolution.X/Y)
+            nc_m = self._ncm
+            U = np.dot(self._Wz[:nc_m], x[: self._nz])
+            U += v[self._sl_traj_u]
+            U = U.reshape(self.Nc, self.m)
         u0 = U[0]
         # remove the solver's O(eps) constraint violation: u0 exactly inside both boxes
         if self.m == 1:  # the common single-input case without the helper call
@@ -1802,8 +1878,8 @@ class LinearMPC:
             u0,
             u0 - up,
             U,
-            X,
-            Y,
+            None,
+            None,
             status,
             status_val,
             iters,
@@ -1812,9 +1888,42 @@ class LinearMPC:
             slack_max,
             False,
             cost,
+            _Predictions(self, x, v),
         )
 
+    def _predictions(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``v``)."""
+        npn = self._npn
+        if self._sparse:
+            X = x[:npn].reshape(self.Np, self.n)
+            return X, X if self._y_is_x else X @ self._C.T
+        nc_m = self._ncm
+        traj = np.dot(self._Wz[nc_m:], x[: self._nz])
+        traj += v[nc_m:]
+        X = traj[:npn].reshape(self.Np, self.n)
+        return X, X if self._y_is_x else traj[npn:].reshape(self.Np, self.p)
+
     # ------------------------------------------------------------------ helpers
+    def _bounds_entry(self, name: str) -> tuple:
+        """Per-group constants of :meth:`_set_bounds` (cached: it runs every step)."""
+        cache = self.__dict__.setdefault("_bounds_cache", {})
+        hit = cache.get(name)
+        if hit is None:
+            g = next((g for g in self._groups if g.name == name), None)
+            if g is None:
+                hit = (None, None, None, None, None, False)
+            else:
+                dropped = np.setdiff1d(np.arange(g.dim_full), g.cols)
+                cols = None if np.array_equal(g.cols, np.arange(g.dim_full)) else g.cols
+                lb_ok = g.lb_pos >= 0
+                lb_all = bool(lb_ok.all())
+                lb = (g.lb_pos if lb_all else g.lb_pos[lb_ok], None if lb_all else lb_ok)
+                # rows of a hard group bound OSQP rows that need l <= u
+                hard = bool(np.any(g.ub_pos < self._nh)) or bool(np.any(g.lb_pos[lb_ok] < self._nh))
+                hit = (g, dropped if dropped.size else None, cols, lb, g.ub_pos, hard)
+            cache[name] = hit
+        return hit
+
     def _set_bounds(
         self,
         up: np.ndarray,
@@ -1826,9 +1935,9 @@ class LinearMPC:
     ) -> bool:
         """Write per-call bounds into the working bound vectors; False if they contain NaN."""
         Lb, Ub = self._Lb, self._Ub
-        cache = self.__dict__.setdefault("_bounds_cache", {})
         self._LUb[...] = self._LUb0
         self._bounds_dirty = True
+        check = relax
         if relax:
             # reachable input bounds when u_prev lies outside [u_min, u_max]
             nu = self._nz
@@ -1839,24 +1948,14 @@ class LinearMPC:
             Lb[r0 : r0 + nu] = np.clip(np.nan_to_num(lo, nan=-_BIG), -_BIG, _BIG).ravel()
             Ub[r0 : r0 + nu] = np.clip(np.nan_to_num(hi, nan=_BIG), -_BIG, _BIG).ravel()
         for name, val, side in (
-            ("y", y_min, "lo"),
-            ("y", y_max, "hi"),
-            ("H_y", h_y, "hi"),
-            ("H_x", h_x, "hi"),
+            ("y", y_min, 0),
+            ("y", y_max, 1),
+            ("H_y", h_y, 1),
+            ("H_x", h_x, 1),
         ):
             if val is None:
                 continue
-            # per-group constants (group, dropped rows) cached on first use: this runs
-            # every step of every per-stage-bounded MPC
-            cached = cache.get(name)
-            if cached is None:
-                g = next((g for g in self._groups if g.name == name), None)
-                dropped = None if g is None else np.setdiff1d(np.arange(g.dim_full), g.cols)
-                cached = cache[name] = (
-                    g,
-                    dropped if dropped is not None and dropped.size else None,
-                )
-            g, dropped = cached
+            g, dropped, cols, lb, ub_pos, hard = self._bounds_entry(name)
             arr = val if type(val) is np.ndarray else np.asarray(val, dtype=float)
             if g is not None:
                 dim = g.dim_full
@@ -1868,37 +1967,38 @@ class LinearMPC:
                 try:
                     arr = np.broadcast_to(arr, (self.Np, dim))
                 except ValueError:
-                    label = {"lo": "y_min", "hi": "y_max"}[side] if name == "y" else "h" + name[1:]
                     raise ValueError(
-                        f"solve(): {label} must have shape ({self.Np}, {dim}) or ({dim},), "
-                        f"got {arr.shape}"
+                        f"solve(): {_bound_label(name, side)} must have shape "
+                        f"({self.Np}, {dim}) or ({dim},), got {arr.shape}"
                     ) from None
             total = arr.sum()
             if total != total and np.isnan(arr).any():  # a sum of +inf and -inf is NaN too
                 return False
-            label = {"lo": "y_min", "hi": "y_max"}[side] if name == "y" else "h" + name[1:]
             if g is None:
                 if np.isfinite(arr).any():
                     raise ValueError(
-                        f"solve(): {label} given but no {name} constraint was set at construction"
+                        f"solve(): {_bound_label(name, side)} given but no {name} constraint "
+                        "was set at construction"
                     )
                 continue
             if dropped is not None and np.isfinite(arr[:, dropped]).any():
                 raise ValueError(
-                    f"solve(): {label} has finite values in rows {dropped.tolist()} that were "
-                    "unconstrained at construction"
+                    f"solve(): {_bound_label(name, side)} has finite values in rows "
+                    f"{dropped.tolist()} that were unconstrained at construction"
                 )
-            vals = np.clip(arr[:, g.cols], -_BIG, _BIG)
-            if side == "lo":
-                pos = g.lb_pos
-                ok = pos >= 0
-                Lb[pos[ok]] = vals[ok]
+            vals = arr if cols is None else arr[:, cols]
+            vals = np.minimum(np.maximum(vals, -_BIG), _BIG)
+            if side == 0:
+                pos, ok = lb
+                Lb[pos] = vals if ok is None else vals[ok]
             else:
-                pos = g.ub_pos
-                Ub[pos] = vals
+                Ub[ub_pos] = vals
+            check = check or hard
+        if not check:
+            return True
         # hard rows must have l <= u for OSQP
         nh = self._nh
-        return bool(np.all(Lb[:nh] <= Ub[:nh]))
+        return bool((Lb[:nh] <= Ub[:nh]).all())
 
     def _fallback(
         self,

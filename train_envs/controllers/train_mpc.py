@@ -275,7 +275,7 @@ class PointMassMPC(_TrainMPCBase):
         self._pending: deque[float] = deque([0.0] * self._l, maxlen=max(self._l, 1))
         self._initialised = False
         self._w_hat = 0.0
-        self._x_pred: np.ndarray | None = None
+        self._v_pred: float | None = None  # one-step speed prediction (observer)
         self._yref_buf = np.zeros((self.Np, 2))
         self._ymax_buf = np.full((self.Np, 2), 1e6)
         if ctx.s_stop_m is not None:
@@ -286,12 +286,17 @@ class PointMassMPC(_TrainMPCBase):
         use_grad = self.feedforward in ("full", "gradient") and ctx.track is not None
         self._grad_tab = gradient_table(ctx.track) if use_grad else None
         self._k_grad = tr.mass_kg * G / 1000.0 / self._mi
+        self._prof = ctx.reference.profile
+        self._distance_mode = ctx.reference.mode == "distance"
+        self._dt = ctx.dt_s
+        self._D_buf = np.zeros((self.Np, self._Ad.shape[0]))
+        self._up_buf = np.zeros(1)
 
     # --------------------------------------------------------------- helpers
     def _observe(self, x: np.ndarray) -> None:
         """Disturbance observer: integrate the one-step speed prediction error."""
-        if self._x_pred is not None and self.observer_gain > 0:
-            innov = float(x[1] - self._x_pred[1])
+        if self._v_pred is not None and self.observer_gain > 0:
+            innov = float(x[1]) - self._v_pred
             self._w_hat += self.observer_gain * innov / float(self._Ed[1])
             self._w_hat = min(max(self._w_hat, -1.0), 1.0)
 
@@ -321,6 +326,34 @@ class PointMassMPC(_TrainMPCBase):
         t0 = float(prof.t_at_s(s)) if ref.mode == "distance" else t
         return prof.sv_at_t(t0 + self._steps[:n])
 
+    def _preview(self, t: float, s: float, n: int) -> tuple[list, list, list]:
+        """:meth:`_reference` and :meth:`_affine` of stages 1..n in plain floats.
+
+        The per-step fast path: the same arithmetic point by point (equal results), no
+        numpy calls on the few-element arrays of a short horizon.
+        """
+        t0 = self._prof.t_at_s(s) if self._distance_mode else t
+        s_r, v_r = self._prof.sample_sv(t0, self._dt, n)
+        w_hat = self._w_hat
+        grad = self._grad_tab
+        kg = self._k_grad
+        if self._ff_full:
+            tr = self.ctx.train
+            a, c, mi = tr.davis_a_N, tr.davis_c_Ns2_per_m2, self._mi
+            bs = tr.davis_b_Ns_per_m - (tr.davis_b_Ns_per_m + 2.0 * c * self._v_lin)
+            if grad is not None:
+                w = [
+                    w_hat - (a * (v > 0.0) + (bs + c * v) * v) / mi - kg * grad(s)
+                    for s, v in zip(s_r, v_r, strict=True)
+                ]
+            else:
+                w = [w_hat - (a * (v > 0.0) + (bs + c * v) * v) / mi for v in v_r]
+        elif grad is not None:
+            w = [w_hat - kg * grad(s) for s in s_r]
+        else:
+            w = [w_hat] * n
+        return s_r, v_r, w
+
     # --------------------------------------------------------------- control
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
         ctx = self.ctx
@@ -329,50 +362,62 @@ class PointMassMPC(_TrainMPCBase):
         if not self._initialised:
             self._pending = deque([u_prev] * self._l, maxlen=max(self._l, 1))
             self._initialised = True
-        a_meas = float(obs.forces_N.sum()) / mi
-        x = np.array([obs.s_m, obs.v_mps, a_meas]) if self._lag else np.array([obs.s_m, obs.v_mps])
+        s_m, v_m = float(obs.s_m), float(obs.v_mps)
+        if self._lag:
+            x = np.array([s_m, v_m, float(obs.forces_N.sum()) / mi])
+        else:
+            x = np.array([s_m, v_m])
         self._observe(x)
         x_meas = x
         t = obs.t_s
+        l = self._l  # noqa: E741
         # predict across the dead time with the commands already sent (001 eq. 10)
-        if self._l:
-            s_p, v_p = self._reference(t - ctx.dt_s, obs.s_m, self._l)
-            w = self._affine(s_p, v_p)
-            u_pend = np.fromiter(self._pending, float, self._l)
+        if l:
+            _, _, w = self._preview(t - ctx.dt_s, s_m, l)
+            u_pend = np.fromiter(self._pending, float, l)
             x = self._Al @ x + self._Bl @ u_pend + self._El @ w
-            t = t + self._l * ctx.dt_s
-        s_r, v_r = self._reference(t, float(x[0]), self.Np)
-        v_now = float(v_r[0])
+            t = t + l * ctx.dt_s
+        s_r, v_r, w_r = self._preview(t, float(x[0]), self.Np)
+        v_now = v_r[0]
         if abs(v_now - self._v_lin) > self.relinearise_mps:
             # new slope in the model; the terminal weight (a function of the weights
             # and, weakly, of the slope) is refreshed with the next weight change
             self._discretise(max(v_now, 0.0))
             self._mpc.set_model(self._Ad, self._Bd)
-        D = np.outer(self._affine(s_r, v_r), self._Ed)
+            s_r, v_r, w_r = self._preview(t, float(x[0]), self.Np)
+        D = self._D_buf
+        np.multiply(np.array(w_r)[:, None], self._Ed, out=D)
         y_ref, y_max = self._yref_buf, self._ymax_buf
         y_ref[:, 0] = s_r
         y_ref[:, 1] = v_r
-        if ctx.track is not None:
-            y_max[:, 1] = ctx.track.speed_limit_at(s_r)
-        sol = self._mpc.solve(x, np.array([u_prev]), y_ref, d=D, y_max=y_max)
+        track = ctx.track
+        if track is not None:
+            limit = track.speed_limit_at
+            y_max[:, 1] = [limit(si) for si in s_r]
+        self._up_buf[0] = u_prev
+        sol = self._mpc.solve(x, self._up_buf, y_ref, d=D, y_max=y_max)
         a_cmd = float(sol.u0[0])
         # the speed-dependent envelope (power limit) is tighter than the QP's static box
-        v = obs.v_mps
-        a_cmd = min(max(a_cmd, -ctx.train.max_brake_N(v) / mi), ctx.train.max_traction_N(v) / mi)
+        tr = ctx.train
+        a_cmd = min(max(a_cmd, -tr.max_brake_N(v_m) / mi), tr.max_traction_N(v_m) / mi)
         # one-step prediction of the next measurement, for the disturbance observer
         # (the affine term of the coming interval, ŵ included: the dead-time prediction's
         # first stage when there is a dead time)
-        u_act = self._pending[0] if self._l else a_cmd
-        if self._l:
-            w_1 = float(w[0])
+        if l:
+            u_act = self._pending[0]
+            w_1 = w[0]
         else:
-            s_1, v_1 = self._reference(obs.t_s - ctx.dt_s, obs.s_m, 1)
-            w_1 = float(self._affine(s_1, v_1)[0])
-        self._x_pred = self._Ad @ x_meas + self._Bd[:, 0] * u_act + self._Ed * w_1
-        if self._l:
+            u_act = a_cmd
+            w_1 = self._preview(obs.t_s - ctx.dt_s, s_m, 1)[2][0]
+        self._v_pred = (
+            float(np.dot(self._Ad[1], x_meas))
+            + float(self._Bd[1, 0]) * u_act
+            + float(self._Ed[1]) * w_1
+        )
+        if l:
             self._pending.append(a_cmd)
         if ctx.n_inputs > 1:
-            u = distribute(ctx, a_cmd * mi, v, obs.u_prev_N, input_shares(ctx))
+            u = distribute(ctx, a_cmd * mi, v_m, obs.u_prev_N, input_shares(ctx))
         else:
             u = np.array([a_cmd * mi])
         return u, self._info(sol)

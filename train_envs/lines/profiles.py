@@ -210,6 +210,42 @@ class SpeedProfile:
         s = np.minimum(self.s_m[i] + (v0 + 0.5 * a * tau) * tau, self.s_m[i + 1])
         return s, np.maximum(v0 + a * tau, 0.0)
 
+    def sample_sv(self, t0: float, dt: float, n: int) -> tuple[list[float], list[float]]:
+        """``(s, v)`` at the ``n`` times ``t0 + k dt``, ``k = 1..n``, as Python lists.
+
+        The scalar twin of :meth:`sv_at_t` for a predictive controller's short,
+        uniform preview: the same arithmetic per point (results equal bit for bit), one
+        segment search and a forward walk instead of a dozen numpy calls on tiny arrays.
+        """
+        tl, sl, vl, al = self._t, self._s, self._v, self._al
+        last = len(tl) - 2
+        i = min(max(bisect_right(tl, t0 + dt) - 1, 0), last)
+        s_out: list[float] = []
+        v_out: list[float] = []
+        t_next = tl[i + 1]
+        for k in range(1, n + 1):
+            x = t0 + dt * k
+            if x >= t_next and i < last:
+                while i < last and tl[i + 1] <= x:
+                    i += 1
+                t_next = tl[i + 1]
+            # min/max written as comparisons (same values, NaN included)
+            ti = tl[i]
+            tau = x - ti
+            if tau < 0.0:
+                tau = 0.0
+            span = t_next - ti
+            if tau > span:
+                tau = span
+            v0 = vl[i]
+            a = al[i]
+            s = sl[i] + (v0 + 0.5 * a * tau) * tau
+            s_end = sl[i + 1]
+            s_out.append(s if s < s_end else s_end)
+            v = v0 + a * tau
+            v_out.append(v if v > 0.0 else 0.0)
+        return s_out, v_out
+
     def v_at_t(self, t: FloatOrArray) -> FloatOrArray:
         """Speed [m/s] at time ``t`` [s]: ``v_i + a_i τ`` (linear in time per segment)."""
         if isinstance(t, _SCALAR):
@@ -732,8 +768,15 @@ def paper002_speed_command(ramp_end_s: float = 450.0) -> SpeedProfile:
     if end != 450.0:
         label += f" (40 -> 70 m/s ramp ending at {end:g} s)"
     return piecewise_speed_command(
-        [(0.0, 0.0), (100.0, 40.0), (400.0, 40.0), (end, 70.0), (850.0, 70.0),
-         (900.0, 50.0), (1200.0, 50.0)],
+        [
+            (0.0, 0.0),
+            (100.0, 40.0),
+            (400.0, 40.0),
+            (end, 70.0),
+            (850.0, 70.0),
+            (900.0, 50.0),
+            (1200.0, 50.0),
+        ],
         label=label,
     )
 
@@ -750,8 +793,14 @@ def paper003_speed_command(accel_mps2: float = 0.15) -> SpeedProfile:
     a = check_range("accel_mps2", accel_mps2, 0.0, 2.0, low_inclusive=False)
     v1, v2, v3 = 150.0 * KMH, 200.0 * KMH, 170.0 * KMH
     return piecewise_speed_command(
-        [(0.0, v1), (100.0, v1), (100.0 + (v2 - v1) / a, v2), (1000.0, v2),
-         (1000.0 + (v2 - v3) / a, v3), (2000.0, v3)],
+        [
+            (0.0, v1),
+            (100.0, v1),
+            (100.0 + (v2 - v1) / a, v2),
+            (1000.0, v2),
+            (1000.0 + (v2 - v3) / a, v3),
+            (2000.0, v3),
+        ],
         label=f"paper 003 speed command (150 -> 200 -> 170 km/h, ramps {a:g} m/s^2 assumed)",
     )
 
