@@ -330,14 +330,14 @@ class MPCSolution:
 class _Predictions:
     """Deferred ``(X, Y)`` of one solve: copies of the QP solution and data it needs."""
 
-    __slots__ = ("mpc", "x", "v")
+    __slots__ = ("mpc", "x", "th")
 
-    def __init__(self, mpc: LinearMPC, x: np.ndarray, v: np.ndarray) -> None:
+    def __init__(self, mpc: LinearMPC, x: np.ndarray, th: np.ndarray) -> None:
         self.mpc, self.x = mpc, x
-        self.v = None if mpc._sparse else v[mpc._sl_traj].copy()
+        self.th = None if mpc._sparse else th.copy()
 
     def __call__(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.mpc._predictions(self.x, self.v)
+        return self.mpc._predictions(self.x, self.th)
 
 
 @dataclass(frozen=True)
@@ -1373,12 +1373,15 @@ class LinearMPC:
         qth[:oe] = Hw_q
         qth[oe:, 0] = rho_s  # column 0 of theta is the constant 1
         self._y_is_x = p == n and np.array_equal(C, np.eye(n))
+        # (condensed: the planned inputs' offsets are part of v; the predicted states and
+        # outputs, rarely read, have their own map evaluated on demand -- MPCSolution.X/Y)
         if sparse:  # the states are variables
             traj_th: list[np.ndarray] = []
-            Wz = np.zeros((0, nz))
+            self._M_xy = self._Wz_xy = None
         else:
-            traj_th = [Uth[:nz], Xth] + ([] if self._y_is_x else [Yth])
-            Wz = np.vstack([self._Tz_c, Sx] + ([] if self._y_is_x else [Sy]))
+            traj_th = [Uth[:nz]]
+            self._M_xy = np.ascontiguousarray(np.vstack([Xth] + ([] if self._y_is_x else [Yth])))
+            self._Wz_xy = np.ascontiguousarray(np.vstack([Sx] + ([] if self._y_is_x else [Sy])))
         Lth = Lth[np.any(Lth != 0, axis=1)]
         M = np.vstack([qth, Cth] + traj_th + [Lth])
         self._M_full = np.ascontiguousarray(M)
@@ -1388,10 +1391,10 @@ class LinearMPC:
         n_off = self._off.stop - self._off.start
         self._sl_c = slice(nv, nv + n_off)
         t0 = nv + n_off
-        self._sl_traj = slice(t0, t0 + Wz.shape[0])
-        self._sl_traj_u = slice(t0, t0 + self._ncm)
-        self._sl_L = slice(t0 + Wz.shape[0], M.shape[0])
-        self._Wz = np.ascontiguousarray(Wz)
+        n_tu = 0 if sparse else self._ncm
+        self._sl_traj_u = slice(t0, t0 + n_tu)
+        self._sl_L = slice(t0 + n_tu, M.shape[0])
+        self._Wz_u = None if sparse else np.ascontiguousarray(self._Tz_c)
         self._Cpinv = np.linalg.pinv(C)
         # condensed data for gain_unconstrained(), the refinement and the fallback
         self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
@@ -1832,8 +1835,7 @@ class LinearMPC:
         if self._sparse:  # states and (absolute) inputs are variables
             U = x[self._oz : self._oe].reshape(self.Nc, self.m)
         else:  # inputs now, predicted states and outputs when read (MPCSolution.X/Y)
-            nc_m = self._ncm
-            U = np.dot(self._Wz[:nc_m], x[: self._nz])
+            U = np.dot(self._Wz_u, x[: self._nz])
             U += v[self._sl_traj_u]
             U = U.reshape(self.Nc, self.m)
         u0 = U[0]
@@ -1888,18 +1890,17 @@ class LinearMPC:
             slack_max,
             False,
             cost,
-            _Predictions(self, x, v),
+            _Predictions(self, x, th),
         )
 
-    def _predictions(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``v``)."""
+    def _predictions(self, x: np.ndarray, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``th``)."""
         npn = self._npn
         if self._sparse:
             X = x[:npn].reshape(self.Np, self.n)
             return X, X if self._y_is_x else X @ self._C.T
-        nc_m = self._ncm
-        traj = np.dot(self._Wz[nc_m:], x[: self._nz])
-        traj += v[nc_m:]
+        traj = np.dot(self._Wz_xy, x[: self._nz])
+        traj += np.dot(self._M_xy, th)
         X = traj[:npn].reshape(self.Np, self.n)
         return X, X if self._y_is_x else traj[npn:].reshape(self.Np, self.p)
 

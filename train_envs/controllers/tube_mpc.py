@@ -453,6 +453,7 @@ class _Problem:
     y_max: np.ndarray | None = None
     tau_v: np.ndarray | None = None
     tau_term: np.ndarray | None = None
+    buffers: tuple | None = None  # per-step index constants and work arrays of _solve
 
 
 class TubeMPC(Controller):
@@ -520,7 +521,11 @@ class TubeMPC(Controller):
         self._problems: dict[int, _Problem] = {}
         self._structure_key: tuple | None = None
         self._model: StoppingModel | None = None
+        self._keys: tuple | None = None  # (weights key, w̄), refreshed on a parameter change
         super().__init__(**params)
+
+    def _on_params_changed(self) -> None:
+        self._keys = None
 
     # ------------------------------------------------------------------ design
     def _holds(self) -> list[int]:
@@ -614,9 +619,15 @@ class TubeMPC(Controller):
             return 0.0
         return self._params["w_scale"] * self.settings.w_bound_mps2
 
+    def _current_keys(self) -> tuple:
+        keys = self._keys
+        if keys is None:
+            keys = self._keys = (self._weights_key(), self._w_bar())
+        return keys
+
     def _refresh(self, prob: _Problem) -> None:
         """Apply parameter changes to one problem lazily (weights, stage scales, W)."""
-        key = self._weights_key()
+        key = self._current_keys()[0]
         old = prob.weights_key
         if old is None or any(
             not math.isclose(a[1], b[1], rel_tol=1e-12, abs_tol=0.0)
@@ -633,7 +644,7 @@ class TubeMPC(Controller):
         # (a change below 1e-12 relative -- an env's action round trip -- only updates
         # the key: no rebuild)
         prob.weights_key = key
-        wb = self._w_bar()
+        wb = self._current_keys()[1]
         if wb != prob.w_bar:
             Np, M = prob.Np, prob.M
             tight = prob.tight
@@ -671,7 +682,8 @@ class TubeMPC(Controller):
         if prob is None:
             with _single_thread_blas():
                 prob = self._problems[M] = self._make_problem(M)
-        if prob.weights_key != self._weights_key() or prob.w_bar != self._w_bar():
+        key, wb = self._current_keys()
+        if prob.weights_key is not key or prob.w_bar != wb:
             with _single_thread_blas():
                 self._refresh(prob)
         return prob
@@ -777,30 +789,38 @@ class TubeMPC(Controller):
     def _solve(self, prob: _Problem, data: Mapping[str, Any]) -> MPCSolution:
         """Solve one problem of the family from the stage data (001 eq. 11, 14 / 25–26)."""
         Np, l = prob.Np, self._l  # noqa: E741
-        xs, v_lim = data["xs"], data["v_lim"]
-        idx = slice(l + 1, l + Np + 1)  # stages 1..Np
-        y_ref = xs[idx, :3].copy()
-        y_ref[:, 2] = 0.0
-        y_max = prob.y_max.copy()
-        y_max[:, 0] -= data["s_o"]
-        y_max[:, 1] = v_lim[idx] - prob.tau_v
-        kN = l + Np
-        xs_N = xs[kN]
+        bufs = prob.buffers
+        if bufs is None or bufs[0] != l:
+            bufs = prob.buffers = (
+                l,
+                slice(l + 1, l + Np + 1),  # stages 1..Np on the grid
+                np.zeros((Np, 3)),  # y_ref (command column stays 0)
+                np.empty((Np, 3)),  # y_max
+                self._term_idx + (l + Np),  # grid indices of the terminal checks
+                np.empty(prob.H_N.shape[0]),
+                slice(l, l + Np),  # d_0 .. d_{Np-1}
+            )
+        _, idx, y_ref, y_max, steps, b, d_idx = bufs
+        xs, v_lim, s_o = data["xs"], data["v_lim"], data["s_o"]
+        y_ref[:, :2] = xs[idx, :2]
+        y_max[...] = prob.y_max
+        y_max[:, 0] -= s_o
+        np.subtract(v_lim[idx], prob.tau_v, out=y_max[:, 1])
+        xs_N = xs[l + Np]
         # terminal set: rows h A_cl^t ξ_N <= b_{N+t} − τ_{N+t} − h (ξ_s,N+t − A_cl^t ξ_s,N)
-        nt = self._term_idx.size
+        nt = steps.size
         if nt:
-            steps = self._term_idx + kN
-            b = np.empty(prob.H_N.shape[0])
-            b[:nt] = (self._s_max - data["s_o"]) - xs[steps, 0]
+            xt = xs[steps]
+            np.subtract(self._s_max - s_o, xt[:, 0], out=b[:nt])
             if b.size > nt:
-                b[nt:] = v_lim[steps] - xs[steps, 1]
+                np.subtract(v_lim[steps], xt[:, 1], out=b[nt:])
             b -= prob.tau_term
             b += prob.H_N @ xs_N
             prob.mpc.set_base_bounds(y_max=y_max, h_N=b)
         else:
             prob.mpc.set_base_bounds(y_max=y_max)
         args = (data["xi0"], self._zero1, y_ref)
-        kw = {"d": data["D"][l : l + Np], "x_ref_N": xs_N}
+        kw = {"d": data["D"][d_idx], "x_ref_N": xs_N}
         sol = prob.mpc.solve(*args, **kw)
         if nt and (sol.fallback or sol.status_val not in (1, 2)):
             # terminal set unreachable (the train is already headed beyond it): drop it
