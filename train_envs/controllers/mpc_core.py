@@ -518,6 +518,15 @@ def _csc_pattern(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return rows, cols, indptr, rows.astype(np.int64)
 
 
+def _as_slice(idx: np.ndarray) -> slice | np.ndarray | None:
+    """``idx`` (sorted, unique) as a slice when contiguous (basic indexing gives views)."""
+    if idx.size == 0:
+        return None
+    if idx[-1] - idx[0] + 1 == idx.size:
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
 def _bound_label(name: str, side: int) -> str:
     """User-facing name of a per-call bound (``y_min``, ``y_max``, ``h_y``, ``h_x``)."""
     if name == "y":
@@ -1914,14 +1923,15 @@ class LinearMPC:
             if g is None:
                 hit = (None, None, None, None, None, False)
             else:
-                dropped = np.setdiff1d(np.arange(g.dim_full), g.cols)
+                dropped = _as_slice(np.setdiff1d(np.arange(g.dim_full), g.cols))
                 cols = None if np.array_equal(g.cols, np.arange(g.dim_full)) else g.cols
+                cols = None if cols is None else _as_slice(cols)
                 lb_ok = g.lb_pos >= 0
                 lb_all = bool(lb_ok.all())
                 lb = (g.lb_pos if lb_all else g.lb_pos[lb_ok], None if lb_all else lb_ok)
                 # rows of a hard group bound OSQP rows that need l <= u
                 hard = bool(np.any(g.ub_pos < self._nh)) or bool(np.any(g.lb_pos[lb_ok] < self._nh))
-                hit = (g, dropped if dropped.size else None, cols, lb, g.ub_pos, hard)
+                hit = (g, dropped, cols, lb, g.ub_pos, hard)
             cache[name] = hit
         return hit
 
@@ -1983,9 +1993,10 @@ class LinearMPC:
                     )
                 continue
             if dropped is not None and np.isfinite(arr[:, dropped]).any():
+                rows = np.arange(dim)[dropped].tolist()
                 raise ValueError(
                     f"solve(): {_bound_label(name, side)} has finite values in rows "
-                    f"{dropped.tolist()} that were unconstrained at construction"
+                    f"{rows} that were unconstrained at construction"
                 )
             vals = arr if cols is None else arr[:, cols]
             vals = np.minimum(np.maximum(vals, -_BIG), _BIG)
