@@ -228,6 +228,7 @@ where e_c is not small. ``reference_form="error"`` gives E_v 0.0175 m/s, ITAE 77
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Mapping
 from typing import Any
 
@@ -236,8 +237,20 @@ import scipy.linalg as sla
 
 from train_envs.controllers._common import distribute, envelope_N, input_shares
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
-from train_envs.controllers.fuzzy import NB, NM, NS, PB, PM, PS, ZO, RuleBase2, trapmf
+from train_envs.controllers.fuzzy import (
+    NB,
+    NM,
+    NS,
+    PB,
+    PM,
+    PS,
+    ZO,
+    RuleBase2,
+    trapmf,
+    trapmf_scalar,
+)
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
+from train_envs.lines.profiles import SpeedProfile
 from train_envs.trains import G
 from train_envs.validation import (
     check_choice,
@@ -380,6 +393,45 @@ def response_time(e: float, edot: float, e_tol: float, edot_tol: float, big: flo
     return big
 
 
+def _profile_speeds(
+    ts: list[float], tl: list[float], vl: list[float], al: list[float]
+) -> list[float]:
+    """``SpeedProfile.v_at_t(ts)`` on the profile's node lists (t, v, a), per point."""
+    last = len(tl) - 2
+    out = []
+    for x in ts:
+        i = bisect_right(tl, x) - 1
+        i = 0 if i < 0 else (last if i > last else i)
+        ti = tl[i]
+        tau = x - ti
+        if tau < 0.0:
+            tau = 0.0
+        span = tl[i + 1] - ti
+        if span < tau:
+            tau = span
+        v = vl[i] + al[i] * tau
+        out.append(v if v > 0.0 else 0.0)
+    return out
+
+
+def _profile_point(
+    t: float, lists: tuple[list[float], ...], i: int | None = None
+) -> tuple[float, float, int]:
+    """(``v_at_t(t)``, ``s_at_t(t)``, segment) of a SpeedProfile at one time, on its node
+    lists (t, v, a, s); ``i``: the segment of t (``SpeedProfile._seg``) if known."""
+    tl, vl, al, sl = lists
+    if i is None:
+        last = len(tl) - 2
+        i = bisect_right(tl, t) - 1
+        i = 0 if i < 0 else (last if i > last else i)
+    ti = tl[i]
+    tau = min(max(t - ti, 0.0), tl[i + 1] - ti)
+    vi, ai = vl[i], al[i]
+    v = max(vi + ai * tau, 0.0)
+    s = min(sl[i] + vi * tau + 0.5 * ai * tau * tau, sl[i + 1])
+    return v, s, i
+
+
 # ------------------------------------------------------------------ controller
 class DMCController(Controller):
     """DMC with fuzzy online softening factor α and correction coefficient h_c (paper 004)."""
@@ -497,6 +549,7 @@ class DMCController(Controller):
         super().set_params(**params)
         if self.alpha_order == "raise" and self._params["alpha_min"] > self._params["alpha_max"]:
             self._params = old
+            self._on_params_changed()  # the derived values follow the rollback
             raise ValueError(
                 f"param alpha_min ({params.get('alpha_min', old['alpha_min'])}) must not "
                 f"exceed param alpha_max ({params.get('alpha_max', old['alpha_max'])})"
@@ -505,8 +558,25 @@ class DMCController(Controller):
     def _on_params_changed(self) -> None:
         if not hasattr(self, "rules"):
             return
-        self.rules.scale_e = self._params["k_e"]
-        self.rules.scale_ec = self._params["k_ec"]
+        p = self._params
+        self.rules.scale_e = p["k_e"]
+        self.rules.scale_ec = p["k_ec"]
+        self._update_laws()
+
+    def _update_laws(self) -> None:
+        """Per-step constants of compute() from the parameters: the effective α bounds
+        (α_min ≤ α_max unless alpha_order="clip" let it exceed), γ and e^γ − 1 of
+        softening_factor(), h_0 and k_h."""
+        p = self._params
+        a_max = p["alpha_max"]
+        trend = p["alpha_trend"]
+        self._alpha_law = (
+            min(p["alpha_min"], a_max),
+            a_max,
+            trend,
+            None if abs(trend) < 1e-9 else math.expm1(trend),
+        )
+        self._h_law = (p["h0"], p["k_h"])
 
     # -------------------------------------------------------------- model
     def reset(self, ctx: ControlContext) -> None:
@@ -560,6 +630,352 @@ class DMCController(Controller):
         self._t_big = 10.0 * self._t_hi
         tp = getattr(ref.profile, "t_s", None)
         self._t_profile_end = float(tp[-1]) if tp is not None else math.inf
+        self._prepare_fast_path(ctx)
+
+    # -------------------------------------------------------------- per-step fast path
+    def _prepare_fast_path(self, ctx: ControlContext) -> None:
+        """Precompute what :meth:`compute` needs every step (its arithmetic is unchanged).
+
+        The per-step work runs on Python floats and lists where NumPy's per-call overhead
+        on 15-element vectors dominated, with the *same* floating-point operations in the
+        same order, so that the result is identical bit for bit (checked by replaying
+        recorded runs against the previous implementation). Vector operations whose
+        rounding depends on NumPy's kernels (the dynamic-matrix product, the pairwise
+        sum of the mean) stay in NumPy. Three look-ups of other modules are restated on
+        floats and used only if they reproduce those functions exactly on a grid of test
+        points (else the functions are called as before):
+
+        * ``v_ref``/``s_ref`` now and the preview ``v_ref(t + iΔt)`` of a time-indexed
+          :class:`SpeedProfile` (``v_at_t``/``s_at_t``);
+        * the force envelope ``[−B(v), F(v)]`` of ``TrainParams.envelope_N`` at the
+          predicted speeds (:meth:`_envelope_a`);
+        * ``TrainParams.max_brake_N``/``max_traction_N`` at the measured speed, for the
+          command clip of a single whole-train input (:meth:`_limits`).
+        """
+        dt = ctx.dt_s
+        P, N = self.P, self.N
+        tr = ctx.train
+        self._update_laws()
+        self._kf = dt / (self.edot_filter_s + dt)  # ė filter gain Δt / (T_f + Δt)
+        self._aP = self.a[:P].tolist()
+        self._dtk = (dt * self._i).tolist()  # the preview's time offsets i Δt
+        # prediction vector buffers and fixed views: ŷ_N0, ŷ_N1, ŷ_P0 = ŷ_N0[:P], the
+        # shifted write ŷ_N0[:−1] ← ŷ_N1[1:] + h_c e_c, and ΔU of the previous plan
+        self._yN0_buf, self._yN1_buf = np.empty(N), np.empty(N)
+        self._dU_shift = np.zeros(self.L)  # [ΔU*(k−1)_{2…L}, 0]
+        self._w_cache: dict[float, tuple[list[float], list[float]]] = {}
+        self._seg_hint = 0
+        # QP data buffers (shared with optimise())
+        r = np.zeros((P, 2))
+        y_min = np.column_stack([np.full(P, -np.inf), np.zeros(P)])
+        y_max = np.column_stack([np.full(P, np.inf), np.zeros(P)])
+        self._opt_bufs = (r, y_min, y_max, np.zeros(P))
+        self._link_views()
+        # comfort jerk bound on the command [N per step]
+        self._jerk_du = self.jerk_max * self.M * dt if math.isfinite(self.jerk_max) else None
+        # feedforward: M g and whether there is a track
+        self._mG = tr.mass_kg * G
+        self._has_track = bool(ctx.track)
+        # one whole-train input: distribute() on floats
+        sh = self._shares
+        self._single = ctx.n_inputs == 1 and sh.shape == (1,) and sh[0] == 1.0
+        self._du_step = ctx.du_max_Nps * dt if math.isfinite(ctx.du_max_Nps) else None
+        # satisfaction trapezoids: (a, b, c, d) of μ_t, and of μ_y with its symmetry
+        self._t_trap = (self._t_lo - self._dt1, self._t_lo, self._t_hi, self._t_hi + self._dt2)
+        eps, dy = self.eps_y, self.delta_y
+        ya, yb, yc, yd = -eps - dy, -eps, eps, eps + dy
+        self._y_trap = (ya, yb, yc, yd)
+        # μ_y(x) = clip((d − |x|)/(d − c), 0, 1) exactly when a = −d, b = −c, b − a = d − c
+        # (the rising edge is the mirror image of the falling one) and b > a
+        self._y_sym = ya == -yd and yb == -yc and yb - ya == yd - yc and yb > ya
+        self._fast_ref = self._check_fast_preview(ctx)
+        if self._fast_ref is not None:  # per segment i: t_{i+1}, and (t_i, v_i, a_i)
+            tl, vl, al, _ = self._fast_ref
+            self._fast_segs = (tl[1:], list(zip(tl[:-1], vl[:-1], al[:-1], strict=True)))
+        self._fast_env = self._check_fast_envelope(tr)
+        self._fast_lim = self._check_fast_limits(tr)
+
+    def _link_views(self) -> None:
+        """Fixed views into the per-run buffers that compute() writes through."""
+        yN0, yN1 = self._yN0_buf, self._yN1_buf
+        self._yN_views = (yN0[: self.P], yN0[:-1], yN1[1:])
+        self._dU_head = self._dU_shift[:-1]
+        r, y_min, y_max, _ = self._opt_bufs
+        self._qp_cols = (r[:, 0], y_min[:, 1], y_max[:, 1])
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # copies (pickle, deepcopy) turn views into arrays of their own: link them again
+        self.__dict__.update(state)
+        if "_yN_views" in state:
+            self._link_views()
+
+    def _check_fast_preview(self, ctx: ControlContext) -> tuple[list[float], ...] | None:
+        """Node lists (t, v, a, s) of a time-indexed SpeedProfile if the list look-up is exact.
+
+        Compared with ``v_at_t`` on arrays (the preview) and ``v_at_t``/``s_at_t`` on
+        scalars (the current v_ref and s_ref) at a sample of nodes, their segment
+        midpoints and a uniform grid over and beyond the profile's time span.
+        """
+        ref = ctx.reference
+        prof = getattr(ref, "profile", None)
+        if getattr(ref, "mode", None) != "time" or not isinstance(prof, SpeedProfile):
+            return None
+        t_nodes = prof.t_s
+        lists = (t_nodes.tolist(), prof.v_mps.tolist(), prof.a_mps2.tolist(), prof.s_m.tolist())
+        tl = lists[0]
+        span = tl[-1] - tl[0]
+        k = np.unique(np.linspace(0, len(tl) - 2, 40).astype(int))  # a sample of segments
+        probe = np.concatenate([
+            t_nodes[k], 0.5 * (t_nodes[k] + t_nodes[k + 1]), t_nodes[-1:],
+            tl[0] + span * np.linspace(-0.05, 1.05, 45), [tl[0] - 1.0, tl[-1] + 1.0],
+        ]).tolist()
+        expect = np.asarray(prof.v_at_t(np.asarray(probe)), dtype=float).tolist()
+        if _profile_speeds(probe, *lists[:3]) != expect:
+            return None
+        for t in probe:
+            v0, s0, _ = _profile_point(t, lists)
+            if v0 != float(prof.v_at_t(t)) or s0 != float(prof.s_at_t(t)):
+                return None
+        return lists
+
+    def _check_fast_envelope(self, tr: Any) -> tuple[float | None, ...] | None:
+        """Constants of :meth:`_envelope_a` if it reproduces ``tr.envelope_N`` exactly."""
+        try:
+            Mi = tr.inertial_mass_kg
+            fin = math.isfinite
+            F, da = tr.max_traction_force_N, tr.davis_a_N
+            db, dc = tr.davis_b_Ns_per_m, tr.davis_c_Ns2_per_m2
+            MA = Mi * tr.max_accel_mps2 if fin(tr.max_accel_mps2) else None
+            # in motion the acceleration limit M(1+ρ) a_max + R(v) ≥ M(1+ρ) a_max + a
+            # (rounding is monotone, a, b, c ≥ 0) cannot bind if that is ≥ F already
+            MA_moving = None if MA is None or (min(da, db, dc) >= 0 and MA + da >= F) else MA
+            consts = (
+                F,
+                tr.max_traction_power_W if fin(tr.max_traction_power_W) else None,
+                MA,
+                MA_moving,
+                da,
+                db,
+                dc,
+                tr.max_brake_force_N,
+                tr.max_brake_power_W if fin(tr.max_brake_power_W) else None,
+                tr.max_friction_brake_force_N,
+                Mi * tr.max_decel_mps2 if fin(tr.max_decel_mps2) else None,
+            )
+            vmax = tr.max_speed_mps if fin(tr.max_speed_mps) else 100.0
+            v = np.concatenate([[0.0, 1e-9, 1e-3], np.linspace(0.0, 1.5 * vmax, 301)[1:]])
+            lo, hi = tr.envelope_N(v)
+            lo_f, hi_f = self._envelope_a(v.tolist(), 0.0, 1.0, consts)
+            ok = lo_f == np.asarray(lo, float).tolist() and hi_f == np.asarray(hi, float).tolist()
+        except (AttributeError, TypeError, ValueError):
+            return None
+        return consts if ok else None
+
+    @staticmethod
+    def _envelope_a(
+        v: list[float], ff: float, M: float, consts: tuple[float | None, ...]
+    ) -> tuple[list[float], list[float]]:
+        """``((lo − ff)/M, (hi − ff)/M)`` of ``TrainParams.envelope_N(max(v, 0))`` as lists.
+
+        The vectorised envelope restated per speed (same operations, same order):
+        ``hi = min(F_t, P_t/v, M(1+ρ) a_max + R(v))``, ``R(0) = 0``, the power term only
+        for v > 0; ``lo = −min(min(F_b, P_b/v) + F_fric, M(1+ρ) d_max)``. A NaN speed
+        gives the standstill values, as in ``envelope_N``.
+        """
+        F, Pt, MA, MA_mov, da, db, dc, Fb, Pb, Ffr, MD = consts
+        hi0 = F if MA is None or not MA + 0.0 < F else MA + 0.0  # standstill
+        lo_out: list[float] = []
+        hi_out: list[float] = []
+        for x in v:
+            if x > 0.0:
+                hi = F
+                if Pt is not None:
+                    q = Pt / x
+                    if q < hi:
+                        hi = q
+                if MA_mov is not None:
+                    q = MA_mov + (da + db * x + dc * (x * x))
+                    if q < hi:
+                        hi = q
+                lo = Fb
+                if Pb is not None:
+                    q = Pb / x
+                    if q < lo:
+                        lo = q
+            else:  # standstill: no power limit, no resistance term
+                hi = hi0
+                lo = Fb
+            lo = lo + Ffr
+            if MD is not None and MD < lo:
+                lo = MD
+            lo_out.append((-lo - ff) / M)
+            hi_out.append((hi - ff) / M)
+        return lo_out, hi_out
+
+    def _check_fast_limits(self, tr: Any) -> tuple[float | None, ...] | None:
+        """Constants of :meth:`_limits` if it reproduces ``max_brake_N``/``max_traction_N``."""
+        try:
+            Mi = tr.inertial_mass_kg
+            fin = math.isfinite
+            consts = (
+                tr.max_traction_force_N,
+                tr.max_traction_power_W if fin(tr.max_traction_power_W) else None,
+                Mi * tr.max_accel_mps2 if fin(tr.max_accel_mps2) else None,
+                tr.davis_a_N,
+                tr.davis_b_Ns_per_m,
+                tr.davis_c_Ns2_per_m2,
+                tr.max_brake_force_N,
+                tr.max_brake_power_W if fin(tr.max_brake_power_W) else None,
+                tr.max_friction_brake_force_N,
+                Mi * tr.max_decel_mps2 if fin(tr.max_decel_mps2) else None,
+            )
+            vmax = tr.max_speed_mps if fin(tr.max_speed_mps) else 100.0
+            grid = np.linspace(-0.5 * vmax, 1.5 * vmax, 401).tolist() + [0.0, -0.0, 1e-9, -1e-9]
+            for v in grid:
+                lo, hi = self._limits(v, consts)
+                if lo != -tr.max_brake_N(v) or hi != tr.max_traction_N(v):
+                    return None
+        except (AttributeError, TypeError, ValueError):
+            return None
+        return consts
+
+    @staticmethod
+    def _limits(v: float, consts: tuple[float | None, ...]) -> tuple[float, float]:
+        """``(−TrainParams.max_brake_N(v), TrainParams.max_traction_N(v))`` on floats."""
+        F, Pt, MA, da, db, dc, Fb, Pb, Ffr, MD = consts
+        av = abs(v)
+        hi = F
+        lo = Fb
+        if av > 0:
+            if Pt is not None:
+                q = Pt / av
+                if q < hi:
+                    hi = q
+            if Pb is not None:
+                q = Pb / av
+                if q < lo:
+                    lo = q
+            res = da + db * av + dc * av * av  # TrainParams.resistance_N(|v|)
+        else:
+            res = 0.0
+        if MA is not None:
+            q = MA + res
+            if q < hi:
+                hi = q
+        lo += Ffr
+        if MD is not None and MD < lo:
+            lo = MD
+        return -lo, hi
+
+    def _reference_now(self, t0: float, s_m: float) -> tuple[float, float, float, int]:
+        """(v_ref, y_r(k), catch-up c, segment of t0) of :meth:`reference_preview` (fast).
+
+        ``SpeedProfile.v_at_t``/``s_at_t`` of the scalar t0 on the node lists; the segment
+        search walks on from the previous step's segment while the time advances.
+        """
+        lists = self._fast_ref
+        tl = lists[0]
+        last = len(tl) - 2
+        i = self._seg_hint
+        if tl[i] <= t0:
+            while i < last and tl[i + 1] <= t0:
+                i += 1
+        else:
+            i = bisect_right(tl, t0) - 1
+            i = 0 if i < 0 else (last if i > last else i)
+        self._seg_hint = i
+        ti = tl[i]  # _profile_point(t0, lists, i)
+        tau = min(max(t0 - ti, 0.0), tl[i + 1] - ti)
+        _, vl, al, sl = lists
+        vi, ai = vl[i], al[i]
+        v0 = max(vi + ai * tau, 0.0)
+        y0 = v0
+        c = 0.0
+        if self.lambda_x > 0.0:  # position catch-up
+            s_ref = min(sl[i] + vi * tau + 0.5 * ai * tau * tau, sl[i + 1])
+            c = self.lambda_x * (s_ref - s_m)
+            c = min(self.catchup_max, max(-self.catchup_max, c))
+            y0 = v0 + c * min(1.0, v0 / self.catchup_fade)
+        if self.stop_hold > 0.0 and self.ctx.s_stop_m is not None and t0 >= self._t_profile_end:
+            y0 = -self.stop_hold
+        return v0, y0, c, i
+
+    def _preview_memberships(
+        self, t0: float, c: float, i: int, y_pred: list[float]
+    ) -> tuple[list[float], list[float]]:
+        """(y_r(k+1 … k+P), μ_y terms) for a time-indexed SpeedProfile (fast path).
+
+        The preview of :meth:`reference_preview` (profile speed at t0 + iΔt, plus the
+        faded catch-up c, then the stop hold) and the trapezoid memberships of the
+        predicted errors ``ŷ − y_r`` of :meth:`satisfaction`, in one pass.
+        """
+        tl, vl, al, _ = self._fast_ref
+        dtk = self._dtk
+        lam = self.lambda_x > 0.0
+        fade = self.catchup_fade
+        ya, yb, yc, yd = self._y_trap
+        dc = yd - yc
+        y_r: list[float] = []
+        mus: list[float] = []
+        if self._y_sym and tl[0] <= t0 and t0 + dtk[-1] < tl[-1]:
+            # inside the profile (before its end, hence before the stop hold): the
+            # segment and τ clamps of SpeedProfile.v_at_t are inactive; the preview
+            # times increase, so each segment search walks on from the last one
+            t_next, segs = self._fast_segs
+            for d, yp in zip(dtk, y_pred, strict=True):
+                x = t0 + d
+                while t_next[i] <= x:
+                    i += 1
+                ti, vi, ai = segs[i]
+                v = vi + ai * (x - ti)
+                if v < 0.0:
+                    v = 0.0
+                if lam:
+                    q = v / fade
+                    v = v + c * (q if q < 1.0 else 1.0)
+                y_r.append(v)
+                ax = abs(yp - v)
+                mus.append(1.0 if ax <= yc else (0.0 if ax >= yd else (yd - ax) / dc))
+            return y_r, mus
+        last = len(tl) - 2
+        t_end = self._t_profile_end
+        hold = self.stop_hold > 0.0 and self.ctx.s_stop_m is not None
+        i = 0
+        for d in dtk:
+            x = t0 + d
+            i = bisect_right(tl, x, i) - 1
+            i = 0 if i < 0 else (last if i > last else i)
+            ti = tl[i]
+            tau = x - ti
+            if tau < 0.0:
+                tau = 0.0
+            span = tl[i + 1] - ti
+            if span < tau:
+                tau = span
+            v = vl[i] + al[i] * tau
+            if v < 0.0:
+                v = 0.0
+            if lam:
+                q = v / fade
+                v = v + c * (q if q < 1.0 else 1.0)
+            if hold and x >= t_end:
+                # the profile has ended at the stop: aim a little below zero (see
+                # reference_preview)
+                v = -self.stop_hold
+            y_r.append(v)
+        return y_r, self._memberships(y_pred, y_r)
+
+    def _memberships(self, y_pred: list[float], y_r: list[float]) -> list[float]:
+        """Trapezoid memberships of the predicted errors ``ŷ − y_r`` (as in satisfaction)."""
+        ya, yb, yc, yd = self._y_trap
+        if self._y_sym:
+            dc = yd - yc
+            out = []
+            for yp, yr in zip(y_pred, y_r, strict=True):
+                ax = abs(yp - yr)
+                out.append(1.0 if ax <= yc else (0.0 if ax >= yd else (yd - ax) / dc))
+            return out
+        return [trapmf_scalar(yp - yr, ya, yb, yc, yd) for yp, yr in zip(y_pred, y_r, strict=True)]
 
     def _build_core(self) -> LinearMPC:
         """The DMC QP on :class:`LinearMPC`: FIR register of the input level (see module doc)."""
@@ -684,67 +1100,149 @@ class DMCController(Controller):
     # -------------------------------------------------------------- control
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
         ctx = self.ctx
-        p = self._params
         dt = ctx.dt_s
         M = self.M
-        y = check_finite("measured speed v_mps", obs.v_mps)
-        check_finite("measured position s_m", obs.s_m)
-        v_ref, y0_ref, y_r = self.reference_preview(obs)
+        P = self.P
+        y = obs.v_mps
+        if type(y) is not float or y - y != 0.0:  # x − x is 0 iff x is a finite float
+            y = check_finite("measured speed v_mps", y)
+        s_m = obs.s_m
+        if type(s_m) is not float or s_m - s_m != 0.0:
+            check_finite("measured position s_m", s_m)
+        t0 = obs.t_s
+        y_r: list[float] | None = None
+        if self._fast_ref is not None and type(t0) is float and t0 - t0 == 0.0:
+            # reference_preview() in two parts: now, and the preview (below, with μ_y)
+            v_ref, y0_ref, c_catch, seg = self._reference_now(t0, s_m)
+        else:
+            v_ref, y0_ref, y_r_arr = self.reference_preview(obs)
+            y_r = np.asarray(y_r_arr, dtype=float).tolist()
         e = y0_ref - y
         if self._e_prev is None:
             self._e_prev = e
-        tf = self.edot_filter_s
-        self._edot += (dt / (tf + dt)) * ((e - self._e_prev) / dt - self._edot)
+        self._edot += self._kf * ((e - self._e_prev) / dt - self._edot)
         self._e_prev = e
         edot = self._edot
 
         # ---- correction coefficient and feedback correction + shift (§3, §5)
-        h_c = self.correction_coefficient(e, edot)
-        ff = self.feedforward_force(obs.s_m + max(y, 0.0) * self._ff_lead, y)
-        u_total_prev = float(np.sum(obs.u_prev_N))
+        h0, k_h = self._h_law  # correction_coefficient()
+        h_c = min(1.0, max(self.h_min, h0 + k_h * self.rules.outputs(e, edot)[0]))
+        if self.feedforward:  # feedforward_force() at the look-ahead position
+            s_ff = s_m + max(y, 0.0) * self._ff_lead
+            theta = float(ctx.track.equivalent_gradient_permil_at(s_ff)) if self._has_track else 0.0
+            ff = ctx.train.resistance_N(y) - self.k_davis * y + self._mG * theta / 1000.0
+        else:
+            ff = 0.0
+        up_N = obs.u_prev_N
+        if type(up_N) is np.ndarray and up_N.shape == (1,):
+            u_total_prev = up_N.item(0)
+        else:
+            u_total_prev = float(np.sum(up_N))
+        yP0_arr, yN0_head, yN1_tail = self._yN_views
         if self._yN0 is None:
             u_prev = (u_total_prev - ff) / M
-            yN0 = np.full(self.N, y)
+            yN0 = self._yN0 = self._yN0_buf
+            yN0.fill(y)
             e_c = None
+            # input memory of the prediction vector: at the first step the flat ŷ_N0 = y(0)
+            # is the model's equilibrium at y(0), i.e. the input level κ y(0)
+            self._u_prev2 = self.k_davis * y / M
         else:
             u_prev = (u_total_prev - self._ff_prev) / M  # u_a(k−1) as really applied
-            yN1 = self._yN0 + self.a * (u_prev - self._u_prev2)
-            e_c = y - yN1[0]
-            ycor = yN1 + h_c * e_c
-            ycor[0] = yN1[0] + e_c
-            yN0 = shift_prediction(ycor, self.tail_ratio)
-        self._yN0 = yN0
-        # input memory of the prediction vector: at the first step the flat ŷ_N0 = y(0)
-        # is the model's equilibrium at y(0), i.e. the input level κ y(0)
-        self._u_prev2 = u_prev if e_c is not None else self.k_davis * y / M
-        yP0 = yN0[: self.P]
+            yN0, yN1 = self._yN0, self._yN1_buf
+            np.multiply(self.a, u_prev - self._u_prev2, out=yN1)
+            np.add(yN0, yN1, out=yN1)  # ŷ_N1 = ŷ_N0 + a Δu
+            y1 = yN1.item(0)
+            e_c = y - y1
+            # ŷ_N0 ← S ŷ_cor with ŷ_cor = ŷ_N1 + h e_c (h = [1, h_c, …]), written in place
+            # (shift_prediction: the entries 2 … N move up, the last is extrapolated)
+            np.add(yN1_tail, h_c * e_c, out=yN0_head)
+            N = self.N
+            c1 = yN0.item(N - 2)
+            c2 = yN0.item(N - 3) if N > 2 else y1 + e_c
+            yN0[N - 1] = c1 + self.tail_ratio * (c1 - c2)
+            self._u_prev2 = u_prev
+        yP0 = yP0_arr.tolist()
 
         # ---- satisfaction and softening factor (§4)
-        dU_shift = np.concatenate([self._dU_plan[1:], [0.0]])
-        y_pred = yP0 + self.A_dyn @ dU_shift
-        t_r, mu_t, mu_y, J = self.satisfaction(e, edot, y_pred - y_r)
-        a_max = p["alpha_max"]
-        a_min = min(p["alpha_min"], a_max)  # equal unless alpha_order="clip" let it exceed
-        alpha = softening_factor(J, a_min, a_max, p["alpha_trend"])
-        if self.reference_form == "level":
-            w = softened_reference(y, y_r, alpha)
+        y_pred = (yP0_arr + self.A_dyn @ self._dU_shift).tolist()
+        # response time and μ_t (response_time(), satisfaction())
+        if abs(e) <= self.e_tol and abs(edot) <= self.edot_tol:
+            t_r = 0.0
+        elif e * edot < 0.0:
+            t_r = min(self._t_big, abs(e) / abs(edot))
         else:
-            w = y_r - alpha ** self._i * (y0_ref - y)
+            t_r = self._t_big
+        mu_t = 1.0 if t_r == 0.0 else trapmf_scalar(t_r, *self._t_trap)
+        # μ_y: mean trapezoid membership of the predicted errors ŷ − y_r
+        if y_r is None:
+            y_r, mus = self._preview_memberships(t0, c_catch, seg, y_pred)
+        else:
+            mus = self._memberships(y_pred, y_r)
+        n1 = mus.count(1.0)
+        if n1 + mus.count(0.0) == P:  # a sum of 0s and 1s is exact in any order
+            mu_y = n1 / P
+        else:  # np.mean's pairwise summation
+            mu_y = float(np.add.reduce(np.array(mus))) / P
+        J = min(mu_t, mu_y) if self.combine == "min" else mu_t * mu_y
+        # softening_factor()
+        a_min, a_max, trend, em = self._alpha_law
+        Jc = min(1.0, max(0.0, J))
+        f = 1.0 - Jc if em is None else math.expm1(trend * (1.0 - Jc)) / em
+        alpha = a_min + (a_max - a_min) * f
+        # α^i and 1 − α^i (i = 1 … P), cached per α (α mostly sits at its bounds)
+        powers = self._w_cache.get(alpha)
+        if powers is None:
+            ai = alpha ** self._i
+            powers = (ai.tolist(), (1.0 - ai).tolist())
+            if len(self._w_cache) >= 64:
+                self._w_cache.clear()
+            self._w_cache[alpha] = powers
+        ai, om = powers
 
         # ---- rolling optimisation on the shared core (§2)
-        tr = ctx.train
-        v_pred = np.maximum(np.concatenate([[y], y_pred[:-1]]), 0.0)
-        lo, hi = tr.envelope_N(v_pred)
-        sol = self.optimise(w, yP0, u_prev, (lo - ff) / M, (hi - ff) / M)
+        # QP data of optimise(): r = w − ŷ_P0 + u(k−1) a with the softened reference w,
+        # soft level bounds (lo − ff)/M, (hi − ff)/M of the envelope at the plan's speeds
+        rows = zip(ai, om, y_r, yP0, self._aP, strict=True)
+        if self.reference_form == "level":  # w = softened_reference(y, y_r, α)
+            r_col = [(a_i * y + o_i * r_i - p_i) + u_prev * s_i for a_i, o_i, r_i, p_i, s_i in rows]
+        else:  # w = y_r − α^i (y_r(k) − y)
+            d0 = y0_ref - y
+            r_col = [(r_i - a_i * d0 - p_i) + u_prev * s_i for a_i, _, r_i, p_i, s_i in rows]
+        v_plan = [y]
+        v_plan += y_pred[:-1]
+        if self._fast_env is not None:
+            u_lo, u_hi = self._envelope_a(v_plan, ff, M, self._fast_env)
+        else:
+            lo, hi = ctx.train.envelope_N(np.maximum(np.array(v_plan), 0.0))
+            u_lo, u_hi = ((lo - ff) / M).tolist(), ((hi - ff) / M).tolist()
+        col_r, col_lo, col_hi = self._qp_cols
+        col_r[:] = r_col
+        col_lo[:] = u_lo
+        col_hi[:] = u_hi
+        r, y_min, y_max, x0 = self._opt_bufs
+        sol = self.mpc.solve(x0, np.array([u_prev]), r, y_min=y_min, y_max=y_max)
         u_a = float(sol.u0[0])
-        self._dU_plan = np.diff(np.concatenate([[u_prev], sol.U[:, 0]]))
+        U = sol.U[:, 0]
+        np.subtract(U[1:], U[:-1], out=self._dU_head)  # the plan's moves 2 … L, then 0
 
         # ---- command: feedforward, comfort jerk, envelope, rate, split (§6)
         u = u_a * M + ff
-        if math.isfinite(self.jerk_max):
-            du = self.jerk_max * M * dt
+        du = self._jerk_du
+        if du is not None:
             u = min(max(u, u_total_prev - du), u_total_prev + du)
-        out = distribute(ctx, u, y, obs.u_prev_N, self._shares)
+        if self._single:
+            # distribute() for one whole-train input, on floats: envelope, then rate window
+            if self._fast_lim is not None:
+                lo_y, hi_y = self._limits(y, self._fast_lim)
+            else:
+                lo_y, hi_y = envelope_N(ctx.train, y)
+            u = min(max(u, lo_y), hi_y)
+            if self._du_step is not None:
+                u = min(max(u, u_total_prev - self._du_step), u_total_prev + self._du_step)
+            out = np.array([u])
+        else:
+            out = distribute(ctx, u, y, up_N, self._shares)
         self._ff_prev = ff
         return out, {
             "v_ref": v_ref,

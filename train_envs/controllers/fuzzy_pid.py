@@ -56,7 +56,9 @@ Davis and 0.03 m/s² random resistance perturbations.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+from bisect import bisect_right
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -70,6 +72,7 @@ from train_envs.controllers._common import (
 )
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.fuzzy import NB, NM, NS, PB, PM, PS, UNIVERSE, ZO, RuleBase2
+from train_envs.lines.profiles import SpeedProfile
 
 # rows: e = NB … PB; columns: ec = NB … PB
 DKP_TABLE = np.array([
@@ -99,6 +102,33 @@ DKD_TABLE = np.array([
     [NS, NS, ZO, ZO, ZO, NS, NS],
     [NB, NB, NM, NM, NM, NB, NB],
 ])
+
+
+def interp_scalar(x: float, xp: Sequence[float], fp: Sequence[float]) -> float:
+    """``float(np.interp(x, xp, fp))`` for one Python float, on lists (same arithmetic).
+
+    NumPy's rules: ``fp[0]`` left of ``xp[0]``, ``fp[-1]`` from ``xp[-1]`` on, ``fp[j]``
+    exactly at a node, else ``slope (x − xp[j]) + fp[j]`` with the slope of the segment,
+    retried from the right end when that gives NaN.
+    """
+    if x != x:
+        return x
+    j = bisect_right(xp, x) - 1
+    if j < 0:
+        return fp[0]
+    if j >= len(xp) - 1:
+        return fp[-1]
+    x0 = xp[j]
+    if x0 == x:
+        return fp[j]
+    y0, y1 = fp[j], fp[j + 1]
+    slope = (y1 - y0) / (xp[j + 1] - x0)
+    y = slope * (x - x0) + y0
+    if y != y:
+        y = slope * (x - xp[j + 1]) + y1
+        if y != y and y0 == y1:
+            y = y0
+    return y
 
 
 class FuzzyPIDController(Controller):
@@ -134,6 +164,12 @@ class FuzzyPIDController(Controller):
         self.rules.scale_e = p["ke"]
         self.rules.scale_ec = p["kec"]
         self._out_scale = np.array([p["dkp"], p["dki"], p["dkd"]]) / UNIVERSE
+        self._update_gain_consts()
+
+    def _update_gain_consts(self) -> None:
+        """(kp0, ki0, kd0, ΔK scales) as Python floats for the per-step path."""
+        p = self._params
+        self._gain_consts = (p["kp0"], p["ki0"], p["kd0"], *self._out_scale.tolist())
 
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)
@@ -141,36 +177,89 @@ class FuzzyPIDController(Controller):
         self._e_prev: float | None = None
         self._de_f = 0.0
         self._shares = input_shares(ctx)
+        self._prepare_fast_path(ctx)
+
+    def _prepare_fast_path(self, ctx: ControlContext) -> None:
+        """Per-run constants of :meth:`compute` (its arithmetic is unchanged by them).
+
+        * the de/dt filter gain ``Δt / (T_f + Δt)`` and the inertial mass;
+        * the reference look-up on Python lists (:func:`interp_scalar` for a_ref) when the
+          reference is a (frozen) :class:`SpeedProfile` and the list look-up reproduces
+          ``np.interp`` on a grid of test points — otherwise :func:`reference_at`;
+        * one whole-train input (share 1): the command is clipped with Python floats,
+          exactly as :func:`distribute` does it on arrays.
+        """
+        dt = ctx.dt_s
+        tr = ctx.train
+        self._update_gain_consts()
+        self._kf = dt / (5.0 * dt + dt)
+        self._Mi = tr.inertial_mass_kg
+        self._single = ctx.n_inputs == 1 and self._shares.shape == (1,) and self._shares[0] == 1.0
+        self._du_step = ctx.du_max_Nps * ctx.dt_s if math.isfinite(ctx.du_max_Nps) else None
+        self._ref_lists: tuple[bool, list[float], list[float]] | None = None
+        ref = ctx.reference
+        prof = getattr(ref, "profile", None)
+        if isinstance(prof, SpeedProfile) and ref.mode in ("time", "distance"):
+            by_time = ref.mode == "time"
+            xp_arr = prof.t_s if by_time else prof.s_m
+            fp_arr = prof.a_mps2
+            xp, fp = xp_arr.tolist(), fp_arr.tolist()
+            span = xp[-1] - xp[0]
+            k = np.unique(np.linspace(0, len(xp) - 2, 40).astype(int))  # sample of segments
+            probe = np.concatenate([
+                xp_arr[k], 0.5 * (xp_arr[k] + xp_arr[k + 1]), xp_arr[-1:],
+                xp[0] + span * np.linspace(-0.05, 1.05, 45), [xp[-1] + 1.0, xp[0] - 1.0],
+            ])
+            expect = np.interp(probe, xp_arr, fp_arr).tolist()
+            if [interp_scalar(x, xp, fp) for x in probe.tolist()] == expect:
+                self._ref_lists = (by_time, xp, fp)
 
     def gains(self, e: float, ec: float) -> tuple[float, float, float]:
         """Scheduled (K_p, K_i, K_d) for error ``e`` [m/s] and error rate ``ec`` [m/s²]."""
-        p = self._params
-        dk = self.rules(e, ec) * self._out_scale
-        return (
-            max(0.0, p["kp0"] + float(dk[0])),
-            max(0.0, p["ki0"] + float(dk[1])),
-            max(0.0, p["kd0"] + float(dk[2])),
-        )
+        kp0, ki0, kd0, sp, si, sd = self._gain_consts
+        dp, di, dd = self.rules.outputs(e, ec)  # ΔK = (dkp, dki, dkd) ⊙ y / 3
+        return max(0.0, kp0 + dp * sp), max(0.0, ki0 + di * si), max(0.0, kd0 + dd * sd)
 
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
         ctx = self.ctx
         dt = ctx.dt_s
         tr = ctx.train
-        v_ref, a_ref = reference_at(ctx, obs)
-        e = v_ref - obs.v_mps
+        v = obs.v_mps
+        rl = self._ref_lists
+        if rl is not None and type(obs.t_s) is float and type(obs.s_m) is float:
+            prof = ctx.reference.profile
+            if rl[0]:
+                v_ref = float(prof.v_at_t(obs.t_s))
+                a_ref = interp_scalar(obs.t_s, rl[1], rl[2])
+            else:
+                v_ref = float(prof.v_at_s(obs.s_m))
+                a_ref = interp_scalar(obs.s_m, rl[1], rl[2])
+        else:
+            v_ref, a_ref = reference_at(ctx, obs)
+        e = v_ref - v
         if self._e_prev is None:
             self._e_prev = e
-        tf = 5.0 * dt
-        self._de_f += (dt / (tf + dt)) * ((e - self._e_prev) / dt - self._de_f)
+        self._de_f += self._kf * ((e - self._e_prev) / dt - self._de_f)
         self._e_prev = e
         kp, ki, kd = self.gains(e, self._de_f)
         a_cmd = a_ref + kp * e + self._integral + kd * self._de_f
-        u = tr.inertial_mass_kg * a_cmd
+        u = self._Mi * a_cmd
         if self.feedforward:
-            u += feedforward_N(ctx, obs.s_m, obs.v_mps)
-        out = distribute(ctx, u, obs.v_mps, obs.u_prev_N, self._shares)
-        u_sat = float(np.sum(out))
-        lo, hi = envelope_N(tr, obs.v_mps)
+            u += feedforward_N(ctx, obs.s_m, v)
+        if self._single and type(v) is float:
+            # distribute() for one whole-train input, on floats: clip to the envelope,
+            # then to the rate window around the previous command
+            lo = -tr.max_brake_N(v)
+            hi = tr.max_traction_N(v)
+            u_sat = min(max(u, lo), hi)
+            if self._du_step is not None:
+                prev = float(np.sum(obs.u_prev_N))  # whole-train previous command
+                u_sat = min(max(u_sat, prev - self._du_step), prev + self._du_step)
+            out = np.array([u_sat])
+        else:
+            out = distribute(ctx, u, v, obs.u_prev_N, self._shares)
+            u_sat = float(np.sum(out))
+            lo, hi = envelope_N(tr, v)
         clipped = abs(u_sat - u) > 1e-9 * max(1.0, hi - lo)
         if not clipped or (u > u_sat and e < 0) or (u < u_sat and e > 0):
             self._integral += ki * e * dt  # conditional integration (anti-windup)
