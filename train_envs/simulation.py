@@ -20,6 +20,7 @@ import pandas as pd
 
 from train_envs.controllers.base import Controller, Observation
 from train_envs.metrics import episode_metrics
+from train_envs.plants.multi_car import _np_sum
 from train_envs.scenarios import Scenario, build_plant
 
 #: controller info keys copied into the DataFrame when present (numeric only)
@@ -106,44 +107,72 @@ class ClosedLoop:
         self.terminated = False
         self.truncated = False
         self._alloc()
+        # (t, s, v, a) of the plant state it was read from (see _lead)
+        self._lead_z: np.ndarray | None = None
+        self._lead_val: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
         self._t_wall = time.perf_counter()
         self.last_info: Mapping[str, Any] = {}
         return self.observe()
 
     def _alloc(self) -> None:
         n, nc = self.n_max, self.plant.n
-        self._cols: dict[str, np.ndarray] = {
-            name: np.full(n, np.nan)
-            for name in (
-                "t_s",
-                "s_m",
-                "v_mps",
-                "a_mps2",
-                "v_ref_mps",
-                "s_ref_m",
-                "v_limit_mps",
-                "gradient_permil",
-                "u_cmd_N",
-                "u_N",
-                "work_traction_J",
-                "work_brake_J",
-                "saturated",
-            )
-        }
+        names = [
+            "t_s",
+            "s_m",
+            "v_mps",
+            "a_mps2",
+            "v_ref_mps",
+            "s_ref_m",
+            "v_limit_mps",
+            "gradient_permil",
+            "u_cmd_N",
+            "u_N",
+            "work_traction_J",
+            "work_brake_J",
+            "saturated",
+        ]
         if nc > 1:
-            for i in range(nc):
-                self._cols[f"u{i + 1}_cmd_N"] = np.full(n, np.nan)
-            self._cols["coupler_force_max_N"] = np.full(n, np.nan)
-            self._cols["coupler_def_max_m"] = np.full(n, np.nan)
+            names += [f"u{i + 1}_cmd_N" for i in range(nc)]
+            names += ["coupler_force_max_N", "coupler_def_max_m"]
+        # one row per control period, in column order; the rows are appended to a list
+        # (cheap per step) and moved into the preallocated table when columns are read.
+        # Column-major, so that every column is a contiguous array as before.
+        self._data = np.full((n, len(names)), np.nan, order="F")
+        self._cols: dict[str, np.ndarray] = {name: self._data[:, j] for j, name in enumerate(names)}
+        self._rows: list[tuple[float, ...]] = []
+        self._rows_k0 = 0  # control step of self._rows[0]
         self._info_cols: dict[str, np.ndarray] = {}
+
+    def _flush(self) -> None:
+        """Move the rows recorded since the last flush into the column table."""
+        rows = self._rows
+        if rows:
+            k0 = self._rows_k0
+            self._data[k0 : k0 + len(rows)] = rows
+            self._rows_k0 = k0 + len(rows)
+            self._rows = []
+
+    def _lead(self) -> tuple[float, float, float, float]:
+        """``(t, s, v, a)`` of the plant now, computed once per plant state.
+
+        Every plant step (and reset) replaces the state array ``plant.z``, so its
+        identity keys the cache (the reference held here keeps it from being reused).
+        """
+        p = self.plant
+        z = p.z
+        if z is not self._lead_z:
+            self._lead_val = p._lead_state()
+            self._lead_z = z
+        return self._lead_val
 
     def observe(self) -> Observation:
         p = self.plant
+        t, s, v, a = self._lead()
         return Observation(
-            t_s=p.t,
-            s_m=p.s,
-            v_mps=p.v,
-            a_mps2=p.accel,
+            t_s=t,
+            s_m=s,
+            v_mps=v,
+            a_mps2=a,
             u_prev_N=self.u_prev.copy(),
             positions_m=p.positions,
             speeds_mps=p.speeds,
@@ -155,61 +184,81 @@ class ClosedLoop:
         """Advance one control period with the controller's command (or ``u`` if given)."""
         if self.done:
             raise RuntimeError("episode is over: call reset()")
-        obs = self.observe()
         if u is None:
+            obs = self.observe()
             u, info = self.controller.compute(obs)
+            state = (obs.t_s, obs.s_m, obs.v_mps, obs.a_mps2)
+            u_N = _total(obs.forces_N)
         else:
             info = {}
+            state = self._lead()
+            u_N = None
         u = np.asarray(u, dtype=float).reshape(-1)
-        if not np.all(np.isfinite(u)):
+        if not (math.isfinite(u[0]) if u.size == 1 else all(map(math.isfinite, u.tolist()))):
             raise ValueError(f"controller {self.controller.name} returned a non-finite command {u}")
         self.last_info = info
-        self._record(obs, u, info)
+        self._record(state, u_N, u, info)
         self.plant.step(u if u.size > 1 else u[0], self.dt)
         self.u_prev = u
         self.k += 1
         self._check_done()
         return info
 
-    def _record(self, obs: Observation, u: np.ndarray, info: Mapping[str, Any]) -> None:
-        k, sc, p, c = self.k, self.scenario, self.plant, self._cols
-        c["t_s"][k] = obs.t_s
-        c["s_m"][k] = obs.s_m
-        c["v_mps"][k] = obs.v_mps
-        c["a_mps2"][k] = obs.a_mps2
-        c["v_ref_mps"][k] = sc.reference.v_ref(obs.t_s, obs.s_m)
-        c["s_ref_m"][k] = sc.reference.s_ref(obs.t_s)
-        c["v_limit_mps"][k] = sc.speed_limit_at(obs.s_m)
-        c["gradient_permil"][k] = sc.gradient_at(obs.s_m)
-        c["u_cmd_N"][k] = float(np.sum(u))
-        c["u_N"][k] = float(np.sum(obs.forces_N))
-        c["work_traction_J"][k] = p.work_traction_J
-        c["work_brake_J"][k] = p.work_brake_J
-        c["saturated"][k] = float(p.saturated)
-        if p.n > 1:
-            per_car = u if u.size == p.n else u.sum() * p.share
-            for i in range(p.n):
-                c[f"u{i + 1}_cmd_N"][k] = per_car[i]
-            cf = p.coupler_forces()
-            cd = p.coupler_deformations()
-            c["coupler_force_max_N"][k] = cf[np.argmax(np.abs(cf))]
-            c["coupler_def_max_m"][k] = cd[np.argmax(np.abs(cd))]
-        for key in INFO_COLUMNS:
-            if key in info:
-                col = self._info_cols.get(key)
-                if col is None:
-                    col = self._info_cols[key] = np.full(self.n_max, np.nan)
-                col[k] = float(info[key])
+    def _record(
+        self,
+        state: tuple[float, float, float, float],
+        u_N: float | None,
+        u: np.ndarray,
+        info: Mapping[str, Any],
+    ) -> None:
+        """Append the row of control step ``k``: the observed state, references, command."""
+        k, sc, p = self.k, self.scenario, self.plant
+        t, s, v, a = state
+        ref = sc.reference
+        n = p.n
+        if u_N is None:  # the observation's actual force, read from the plant
+            u_N = p.force_total
+        ul = u.tolist()
+        row = (
+            t,
+            s,
+            v,
+            a,
+            ref.v_ref(t, s),
+            ref.s_ref(t),
+            sc.speed_limit_at(s),
+            sc.gradient_at(s),
+            _np_sum(ul),  # float(np.sum(u))
+            u_N,
+            p.work_traction_J,
+            p.work_brake_J,
+            float(p.saturated),
+        )
+        if n > 1:
+            per_car = ul if u.size == n else (u.sum() * p.share).tolist()
+            row = (*row, *per_car, *p._coupler_extremes())
+        if self._rows_k0 + len(self._rows) != k:
+            # a plant step failed after this row was recorded: row k is recorded again
+            self._flush()
+            self._rows_k0 = k
+        self._rows.append(row)
+        if info:
+            for key in INFO_COLUMNS:
+                if key in info:
+                    col = self._info_cols.get(key)
+                    if col is None:
+                        col = self._info_cols[key] = np.full(self.n_max, np.nan)
+                    col[k] = float(info[key])
 
     def _check_done(self) -> None:
         sc, p = self.scenario, self.plant
-        t = p.t
-        if not self._moved and p.v > 0.1:
+        t, s, v, _ = self._lead()  # (the next observation reads the same, cached)
+        if not self._moved and v > 0.1:
             self._moved = True
         if sc.s_stop_m is not None:
             if p.stopped and self._moved:
                 self.terminated = True
-            elif p.s > sc.s_stop_m + sc.overrun_m:
+            elif s > sc.s_stop_m + sc.overrun_m:
                 self.terminated = True
         elif t >= sc.t_max_s - 1e-9:
             self.terminated = True
@@ -219,12 +268,14 @@ class ClosedLoop:
 
     def columns(self, k0: int, k1: int) -> dict[str, np.ndarray]:
         """Views of the recorded columns for control steps ``k0 .. k1-1`` (no copy)."""
+        self._flush()
         return {name: arr[k0:k1] for name, arr in self._cols.items()}
 
     # ---------------------------------------------------------------- results
     def dataframe(self) -> pd.DataFrame:
         """Rows recorded so far, plus a final row with the state after the last step."""
         k = self.k
+        self._flush()
         data = {name: arr[:k].copy() for name, arr in self._cols.items()}
         data.update({name: arr[:k].copy() for name, arr in self._info_cols.items()})
         df = pd.DataFrame(data)
@@ -276,6 +327,11 @@ class ClosedLoop:
             wall_time_s=time.perf_counter() - self._t_wall,
             error=error,
         )
+
+
+def _total(x: np.ndarray) -> float:
+    """``float(np.sum(x))`` (the element itself for one element)."""
+    return float(x[0]) if len(x) == 1 else float(np.sum(x))
 
 
 def simulate(

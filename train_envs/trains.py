@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field, replace
-from functools import cache
+from functools import cache, cached_property
 from importlib import resources
 from typing import Any
 
@@ -139,6 +139,35 @@ class TrainParams:
             return tuple(self.car_masses_kg)
         return (self.mass_kg / self.n_cars,) * self.n_cars
 
+    @cached_property
+    def _traction_consts(self) -> tuple[float, float | None, float | None, float, float, float]:
+        """``(F_t, P_t, M'a_max, a, b, c)`` of the traction envelope, ``None`` for no limit.
+
+        Computed once per (frozen) parameter set; ``M'a_max`` is the product the envelope
+        methods used to form on every call (same operands, same rounding), so the cached
+        values reproduce them exactly.
+        """
+        fin = math.isfinite
+        return (
+            self.max_traction_force_N,
+            self.max_traction_power_W if fin(self.max_traction_power_W) else None,
+            self.inertial_mass_kg * self.max_accel_mps2 if fin(self.max_accel_mps2) else None,
+            self.davis_a_N,
+            self.davis_b_Ns_per_m,
+            self.davis_c_Ns2_per_m2,
+        )
+
+    @cached_property
+    def _brake_consts(self) -> tuple[float, float | None, float, float | None]:
+        """``(F_b, P_b, F_fric, M'd_max)`` of the braking envelope, ``None`` for no limit."""
+        fin = math.isfinite
+        return (
+            self.max_brake_force_N,
+            self.max_brake_power_W if fin(self.max_brake_power_W) else None,
+            self.max_friction_brake_force_N,
+            self.inertial_mass_kg * self.max_decel_mps2 if fin(self.max_decel_mps2) else None,
+        )
+
     def resistance_N(self, v: float) -> float:
         """Davis resistance of the whole train at speed ``v`` [m/s] (opposes motion)."""
         av = abs(v)
@@ -147,43 +176,50 @@ class TrainParams:
 
     def max_traction_N(self, v: float) -> float:
         """Traction envelope ``min(F_t, P_t / |v|, M a_max)`` [N]."""
-        f = self.max_traction_force_N
+        f, P, MA, a, b, c = self._traction_consts
         av = abs(v)
-        if av > 0 and math.isfinite(self.max_traction_power_W):
-            f = min(f, self.max_traction_power_W / av)
-        if math.isfinite(self.max_accel_mps2):
-            f = min(f, self.inertial_mass_kg * self.max_accel_mps2 + self.resistance_N(av))
+        if av > 0 and P is not None:
+            f = min(f, P / av)
+        if MA is not None:
+            # M (1 + ρ) a_max + R(|v|), R(0) = 0 (as resistance_N)
+            f = min(f, MA + ((a + b * av + c * av * av) if av != 0 else 0.0))
         return f
 
     def envelope_N(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Vectorised force bounds ``(−max_brake_N(v), max_traction_N(v))`` for speeds ``v``."""
+        F, P, MA, a, b, c = self._traction_consts
+        Fb, Pb, Ffr, MD = self._brake_consts
         av = np.abs(np.asarray(v, dtype=float))
+        if av.ndim == 0:  # a scalar speed: same values and result types as ever
+            lo, hi = self.envelope_N(av.reshape(1))
+            return lo[0], hi[0] if MA is not None else hi.reshape(())
         pos = av > 0
-        safe = np.where(pos, av, 1.0)
-        hi = np.full(av.shape, self.max_traction_force_N)
-        if math.isfinite(self.max_traction_power_W):
-            hi = np.where(pos, np.minimum(hi, self.max_traction_power_W / safe), hi)
-        if math.isfinite(self.max_accel_mps2):
-            davis = self.davis_a_N + self.davis_b_Ns_per_m * av + self.davis_c_Ns2_per_m2 * av**2
-            res = np.where(pos, davis, 0.0)
-            hi = np.minimum(hi, self.inertial_mass_kg * self.max_accel_mps2 + res)
-        lo = np.full(av.shape, self.max_brake_force_N)
-        if math.isfinite(self.max_brake_power_W):
-            lo = np.where(pos, np.minimum(lo, self.max_brake_power_W / safe), lo)
-        lo = lo + self.max_friction_brake_force_N
-        if math.isfinite(self.max_decel_mps2):
-            lo = np.minimum(lo, self.inertial_mass_kg * self.max_decel_mps2)
+        # the power limits apply to moving speeds only: P/|v| there, +inf at standstill
+        if P is not None:
+            hi = np.minimum(F, np.divide(P, av, out=np.full(av.shape, np.inf), where=pos))
+        else:
+            hi = np.full(av.shape, F)
+        if MA is not None:
+            davis = a + b * av + c * av**2
+            hi = np.minimum(hi, MA + np.where(pos, davis, 0.0))
+        if Pb is not None:
+            lo = np.minimum(Fb, np.divide(Pb, av, out=np.full(av.shape, np.inf), where=pos))
+            lo += Ffr
+        else:
+            lo = np.full(av.shape, Fb + Ffr)
+        if MD is not None:
+            lo = np.minimum(lo, MD)
         return -lo, hi
 
     def max_brake_N(self, v: float) -> float:
         """Braking envelope (positive number) = power-limited electric + friction [N]."""
-        f = self.max_brake_force_N
+        f, P, Ffr, MD = self._brake_consts
         av = abs(v)
-        if av > 0 and math.isfinite(self.max_brake_power_W):
-            f = min(f, self.max_brake_power_W / av)
-        f += self.max_friction_brake_force_N
-        if math.isfinite(self.max_decel_mps2):
-            f = min(f, self.inertial_mass_kg * self.max_decel_mps2)
+        if av > 0 and P is not None:
+            f = min(f, P / av)
+        f += Ffr
+        if MD is not None:
+            f = min(f, MD)
         return f
 
     def with_mass_factor(self, factor: float) -> TrainParams:

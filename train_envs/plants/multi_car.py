@@ -29,17 +29,26 @@ Braking to a standstill: when the lead car's speed crosses zero the train is hel
 (brakes hold a stopped train); the crossing point is interpolated inside the sub-step
 so that the stopping position is accurate to well under a millimetre. It moves again
 when the net tractive force exceeds the gradient force plus the Davis constant term.
+
+Implementation: at a handful of states numpy's per-call overhead (~1 µs) dwarfs the
+arithmetic, so the per-sub-step work runs on Python floats wherever it can: the whole
+ETD2 step of the single-point train, and for several cars the nonlinear term, the
+saturation and the energy bookkeeping (the matrix products stay BLAS calls). The float
+code performs the same IEEE operations in the same order as the array formulation, so
+the results are identical to it bit for bit.
 """
 
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from train_envs.plants.integrator import ETD2Integrator
+from train_envs.plants.lookup import PiecewiseLinear
 from train_envs.plants.resistance import DavisVariation, Disturbance
 from train_envs.trains import G, TrainParams
 from train_envs.validation import check_finite, check_nonnegative, check_positive, check_range
@@ -144,6 +153,7 @@ class TrainPlant:
             )
         self.delay_steps = int(round(delay_steps))
 
+        self._nsub: dict[float, int] = {}  # sub-steps per step duration, validated
         self._build_linear()
         self.reset(0.0, 0.0)
 
@@ -191,6 +201,39 @@ class TrainPlant:
         self._mg0, self._m0 = float(self._mg[0]), float(self.m[0])
         self._minv0 = 1.0 / float(self.m_inertial[0])
         self._nl_buf = np.zeros(1)
+        # Python-float copies of the per-car constants for the float code paths (the same
+        # numbers as the arrays above, combined by the same operations in the same order)
+        self._ca_l, self._cb_l, self._cc_l = self.ca.tolist(), self.cb.tolist(), self.cc.tolist()
+        self._m_l, self._mi_l = self.m.tolist(), self.m_inertial.tolist()
+        self._mg_l, self._off_l = self._mg.tolist(), self._offsets.tolist()
+        self._m_sum = float(self.m.sum())
+        self._share0 = float(self.share[0])
+        self._share_l = self.share.tolist()
+        self._nl_arr = np.zeros(n)  # work array of the multi-car float path
+        self._zeros_l = [0.0] * n
+        # per car: (index of its speed in z, a_i, b_i, c_i, offset_i, m_i g/1000, m_i, m'_i)
+        self._car_consts = [
+            (n + i, *c)
+            for i, c in enumerate(
+                zip(
+                    self._ca_l,
+                    self._cb_l,
+                    self._cc_l,
+                    self._off_l,
+                    self._mg_l,
+                    self._m_l,
+                    self._mi_l,
+                    strict=True,
+                )
+            )
+        ]
+        self._grad_src: object = None
+        self._grad_lists: tuple[list[float], list[float], list[float]] | None = None
+        # the lead car's acceleration read-out of a single car needs no matrix product:
+        # its row of [A B] has one non-zero entry (m'^-1 on the force state, or on the
+        # input for an ideal actuator), the other products being exact zeros
+        self._lead_fast = n == 1 and self.davis_variation is None
+        self._acc_coef = float(A[n, 2 * n]) if order else float(B[n, 0])
         # float copies of the ETD2 matrices for the single-car fast path
         self._scalar_ok = n == 1 and self.davis_variation is None and self.actuator.order < 2
         ig = self._integ
@@ -201,11 +244,26 @@ class TrainPlant:
             ig.P2[:, 0].tolist(),
         )
 
+    def _grad_table(self) -> tuple[list[float], list[float], list[float]] | None:
+        """``(x, y0, slope)`` lists of the gradient look-up when it is a :class:`PiecewiseLinear`.
+
+        The float paths evaluate that table in place (bisect on the lists, exactly what
+        ``PiecewiseLinear.__call__`` does for one point); any other callable is called.
+        """
+        g = self.gradient_permil
+        if g is not self._grad_src:
+            self._grad_src = g
+            self._grad_lists = (g._xl, g._y0l, g._sl) if type(g) is PiecewiseLinear else None
+        return self._grad_lists
+
     def _nonlinear(self, z: np.ndarray, t: float) -> np.ndarray:
         """Nonlinear accelerations (rows of the speeds): −(Davis + gradient + w)/m'."""
         n = self.n
         if n == 1 and self.davis_variation is None:
             return self._nonlinear_single(z, t)
+        tab = self._grad_table()
+        if self.gradient_permil is None or tab is not None:
+            return np.array(self._nonlinear_floats(z.tolist(), t, n, tab))
         v = z[n : 2 * n]
         av = np.abs(v)
         ca, cb, cc = self.ca, self.cb, self.cc
@@ -229,21 +287,95 @@ class TrainPlant:
             force = force + self.m * w
         return -force / self.m_inertial
 
-    def _nonlinear_single(self, z: np.ndarray, t: float) -> np.ndarray:
-        """Scalar fast path of :meth:`_nonlinear` for the single-point train."""
-        v = float(z[1])
+    def _nonlinear_floats(
+        self,
+        z: list[float],
+        t: float,
+        cars: int,
+        tab: tuple[list[float], list[float], list[float]] | None,
+        minus: list[float] | None = None,
+    ) -> list[float]:
+        """:meth:`_nonlinear` on Python floats for the first ``cars`` cars.
+
+        Same operations in the same order as the array code, element by element (numpy's
+        element-wise arithmetic is IEEE-exact like Python's), so the results are identical;
+        the gradient must be ``None`` or a :class:`PiecewiseLinear` whose lists ``tab``
+        :meth:`_grad_table` gives. ``minus`` (n values) is subtracted from the results:
+        the ETD2 step's ``N(a) − N(z)`` in one pass (subtracting 0.0 changes nothing).
+        """
+        n = self.n
+        if minus is None:
+            minus = self._zeros_l
+        dv = self.davis_variation
+        if self.gradient_permil is None:
+            tab = None
+        wd = None
+        if self.disturbances:
+            wd = 0.0
+            for dist in self.disturbances:
+                wd += dist.accel(t)
+        out = []
+        if dv is None and tab is not None:  # the usual case, one tuple of constants per car
+            xl, y0l, sl = tab
+            consts = self._car_consts if cars == n else self._car_consts[:cars]
+            for (vi, ca, cb, cc, off, mg, m, mi), x, s0 in zip(consts, z, minus, strict=False):
+                v = z[vi]
+                av = v if v >= 0.0 else -v
+                f = ca + cb * av + cc * av * av
+                f = f if v > 0 else (-f if v < 0 else 0.0)  # np.sign(v) * f
+                x = x - off
+                j = bisect_right(xl, x) - 1
+                f = f + mg * (y0l[j] + sl[j] * (x - xl[j]))
+                if wd is not None:
+                    f = f + m * wd
+                out.append(-f / mi - s0)
+            return out
+        ca, cb, cc = self._ca_l, self._cb_l, self._cc_l
+        m, mg, mi, off = self._m_l, self._mg_l, self._mi_l, self._off_l
+        d0 = d1 = d2 = 0.0
+        if dv is not None:
+            d0, d1, d2 = dv.deltas(t)
+        if tab is not None:
+            xl, y0l, sl = tab
+        for i in range(cars):
+            v = z[n + i]
+            av = v if v >= 0.0 else -v
+            if dv is None:
+                f = ca[i] + cb[i] * av + cc[i] * av * av
+            else:
+                if self.lead_aero:
+                    c2 = cc[i] + d2 * self._m_sum if i == 0 else cc[i]
+                else:
+                    c2 = cc[i] + d2 * m[i]
+                f = (ca[i] + d0 * m[i]) + (cb[i] + d1 * m[i]) * av + c2 * av * av
+            f = f if v > 0 else (-f if v < 0 else 0.0)  # np.sign(v) * f
+            if tab is not None:
+                x = z[i] - off[i]
+                j = bisect_right(xl, x) - 1
+                f = f + mg[i] * (y0l[j] + sl[j] * (x - xl[j]))
+            if wd is not None:
+                f = f + m[i] * wd
+            out.append(-f / mi[i] - minus[i])
+        return out
+
+    def _nl_single(self, s: float, v: float, t: float) -> float:
+        """Nonlinear acceleration of the single-point train (floats): −(R + F_g + m w)/m'."""
         av = abs(v)
         f = self._ca0 + self._cb0 * av + self._cc0 * av * av
         f = f if v > 0 else (-f if v < 0 else 0.0)
         if self.gradient_permil is not None:
-            f += self._mg0 * float(self.gradient_permil(float(z[0])))
+            f += self._mg0 * float(self.gradient_permil(s))
         if self.disturbances:
             w = 0.0
             for dist in self.disturbances:
                 w += dist.accel(t)
             f += self._m0 * w
+        return -f * self._minv0
+
+    def _nonlinear_single(self, z: np.ndarray, t: float) -> np.ndarray:
+        """Scalar fast path of :meth:`_nonlinear` for the single-point train."""
         out = self._nl_buf
-        out[0] = -f * self._minv0
+        out[0] = self._nl_single(float(z[0]), float(z[1]), t)
         return out.copy()
 
     # ------------------------------------------------------------- interface
@@ -285,14 +417,30 @@ class TrainPlant:
         self.z = z
         self.t = float(t0)
         self._buffer = np.tile(w0, (self.delay_steps + 1, 1))
+        self._buf_list: list[float] | None = None  # the single-car path's copy of _buffer
         self._head = 0
-        self._w_now = w0.copy()
+        self._w_now: np.ndarray | float = w0.copy()
         self.stopped = v0 <= 0.0
         self.work_traction_J = 0.0
         self.work_brake_J = 0.0
-        self._p_last = self._forces(z) * z[n : 2 * n] if self.actuator.order else w0 * z[n : 2 * n]
+        # last sub-step's traction powers F_i v_i: an array, or (float paths) a list/float
+        self._p_last: np.ndarray | list[float] | float = (
+            self._forces(z) * z[n : 2 * n] if self.actuator.order else w0 * z[n : 2 * n]
+        )
         self.last_command = w0.copy()
         self.saturated = False
+
+    @property
+    def last_command(self) -> np.ndarray:
+        """Saturated command per car [N] applied by the last :meth:`step`."""
+        lc = self._last_command
+        if type(lc) is float:  # the single-car path stores the float
+            lc = self._last_command = np.array([lc])
+        return lc
+
+    @last_command.setter
+    def last_command(self, value: np.ndarray | float) -> None:
+        self._last_command = value
 
     def _split(self, u: float | Sequence[float]) -> np.ndarray:
         if self.input_mode == "total":
@@ -308,140 +456,243 @@ class TrainPlant:
             arr = np.full(self.n, arr[0] / self.n)
         if arr.size != self.n:
             raise ValueError(f"command must have n_cars={self.n} entries, got {arr.size}")
-        if not np.all(np.isfinite(arr)):
+        if not all(map(math.isfinite, arr.tolist())):  # (np.isfinite(arr).all(), cheaper)
             raise ValueError("command u_N must be finite")
         return arr
 
     def saturate(self, w: np.ndarray) -> np.ndarray:
         """Clip per-car commands to each car's share of the traction/brake envelope."""
         v = abs(float(self.z[self.n]))
+        if type(w) is np.ndarray and w.shape == (self.n,):
+            # per car on floats: lo_i = −B(v) share_i, hi_i = F(v) share_i,
+            # out_i = min(max(w_i, lo_i), hi_i), as the array expressions below
+            hi = self.train.max_traction_N(v)
+            lo = -self.train.max_brake_N(v)
+            out = []
+            sat = False
+            for wi, sh in zip(w.tolist(), self._share_l, strict=True):
+                lo_i = lo * sh
+                hi_i = hi * sh
+                o = lo_i if wi < lo_i else wi
+                if o > hi_i:
+                    o = hi_i
+                if o != wi:
+                    sat = True
+                out.append(o)
+            self.saturated = sat
+            return np.array(out)
         hi = self.train.max_traction_N(v) * self.share
         lo = -self.train.max_brake_N(v) * self.share
         out = np.minimum(np.maximum(w, lo), hi)
         self.saturated = bool(np.any(out != w))
         return out
 
+    def _saturate_single(self, u: float | Sequence[float], v: float) -> float:
+        """:meth:`_split` + :meth:`saturate` of a single car on floats (speed ``v``)."""
+        if self.input_mode == "total" and isinstance(u, (float, int, np.floating, np.integer)):
+            val = float(u)
+            if not math.isfinite(val):
+                raise ValueError(f"command u_N must be finite, got {val}")
+            val = val * self._share0
+        else:
+            val = float(self._split(u)[0])
+        v = abs(v)
+        hi = self.train.max_traction_N(v) * self._share0
+        lo = -self.train.max_brake_N(v) * self._share0
+        out = lo if val < lo else val  # np.maximum(val, lo)
+        if out > hi:  # np.minimum(., hi)
+            out = hi
+        self.saturated = out != val
+        return out
+
+    def _substeps(self, duration_s: float) -> int:
+        """Number of sub-steps in ``duration_s`` (validated once per distinct duration)."""
+        k = self._nsub.get(duration_s)
+        if k is None:
+            nsub = duration_s / self.h
+            k = int(round(nsub))
+            if k < 1 or abs(nsub - k) > 1e-6:
+                raise ValueError(
+                    f"duration_s ({duration_s}) must be a positive multiple of dt_sim_s ({self.h})"
+                )
+            self._nsub[duration_s] = k
+        return k
+
     def step(self, u: float | Sequence[float], duration_s: float) -> None:
         """Apply command ``u`` [N] (held) for ``duration_s`` (a multiple of ``dt_sim_s``)."""
-        nsub = duration_s / self.h
-        k = int(round(nsub))
-        if k < 1 or abs(nsub - k) > 1e-6:
-            raise ValueError(
-                f"duration_s ({duration_s}) must be a positive multiple of dt_sim_s ({self.h})"
-            )
+        k = self._substeps(duration_s)
+        if self._scalar_ok:
+            z = self.z.tolist()
+            w = self._saturate_single(u, z[1])
+            self.last_command = w
+            self._run_single(w, k, z)
+            return
         w_cmd = self.saturate(self._split(u))
         self.last_command = w_cmd
-        if self._scalar_ok:
-            self._run_single(float(w_cmd[0]), k)
-            return
-        n = self.n
+        if self._buf_list is not None:  # the single-car path ran last: take its buffer over
+            self._buffer[:, 0] = self._buf_list
+            self._buf_list = None
         buf = self._buffer
         nb = buf.shape[0]
+        if nb == 1:
+            # no dead time: the input is held over the k sub-steps, Γ w is computed once
+            self._w_now = w_cmd
+            gw = self._integ.Gamma.dot(w_cmd)
+            wl = w_cmd.tolist()
+            for _ in range(k):
+                self._substep(w_cmd, gw, wl)
+            return
         for _ in range(k):
             # dead-time buffer: write the current command, read the one issued T_d ago
             buf[self._head] = w_cmd
-            w = buf[(self._head + 1) % nb] if nb > 1 else w_cmd
+            w = buf[(self._head + 1) % nb]
             self._head = (self._head + 1) % nb
             self._w_now = w
             self._substep(w)
-        del n
 
-    def _run_single(self, w_cmd: float, k: int) -> None:
+    def _run_single(self, w_cmd: float, k: int, z: list[float] | None = None) -> None:
         """Scalar fast path of :meth:`step` for a single car (same arithmetic in floats).
 
         The single-point train is the most simulated plant (every tuning evaluation
         and RL rollout of the point-mass scenarios); at three states numpy's per-call
-        overhead dominates, so the ETD2 step is unrolled on Python floats here.
+        overhead dominates, so the ETD2 step is unrolled on Python floats here, with the
+        nonlinear term, the gradient look-up and the dead-time buffer inlined.
         ``tests/test_plants.py`` checks it against the general path.
         """
         order = self.actuator.order
         Phi, Gam, P1, P2 = self._sc_mats
         h = self.h
+        h2 = 0.25 * h
         grad = self.gradient_permil
+        tab = self._grad_table() if grad is not None else None
+        if tab is not None:
+            xl, y0l, sl = tab
         dists = self.disturbances
         ca, cb, cc = self._ca0, self._cb0, self._cc0
         mg, m0, minv = self._mg0, self._m0, self._minv0
         hold = self.HOLD_SPEED_MPS
-        buf = self._buffer
-        nb = buf.shape[0]
-        z = self.z.tolist()
+        nb = self._buffer.shape[0]
+        if nb > 1:
+            bl = self._buf_list
+            if bl is None:
+                bl = self._buf_list = self._buffer[:, 0].tolist()
+        head = self._head
+        if z is None:
+            z = self.z.tolist()
+        if order:
+            z0, z1, z2 = z
+            (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = Phi
+            g0, g1, g2 = Gam
+            q0, q1, q2 = P1
+            r0, r1, r2 = P2
+        else:
+            z0, z1 = z
+            z2 = 0.0
+            (p00, p01), (p10, p11) = Phi
+            g0, g1 = Gam
+            q0, q1 = P1
+            r0, r1 = P2
         t = self.t
-        p_last = float(self._p_last[0])
+        pl = self._p_last
+        p_last = pl if type(pl) is float else float(pl[0])
         wt = wb = 0.0
         stopped = self.stopped
-
-        def nl(s_: float, v_: float, t_: float) -> float:
-            av = v_ if v_ >= 0.0 else -v_
-            f = ca + cb * av + cc * av * av
-            f = f if v_ > 0 else (-f if v_ < 0 else 0.0)
-            if grad is not None:
-                f += mg * float(grad(s_))
-            if dists:
-                wd = 0.0
-                for dist in dists:
-                    wd += dist.accel(t_)
-                f += m0 * wd
-            return -f * minv
-
+        w = w_cmd
         for _ in range(k):
-            buf[self._head, 0] = w_cmd
-            w = float(buf[(self._head + 1) % nb, 0]) if nb > 1 else w_cmd
-            self._head = (self._head + 1) % nb
-            nz = len(z)
+            if nb > 1:
+                bl[head] = w_cmd
+                head = (head + 1) % nb
+                w = bl[head]
             if stopped:
-                F = w if order == 0 else z[2]
-                g_f = mg * float(grad(z[0])) if grad is not None else 0.0
+                F = w if order == 0 else z2
+                if tab is not None:
+                    j = bisect_right(xl, z0) - 1
+                    g_f = mg * (y0l[j] + sl[j] * (z0 - xl[j]))
+                else:
+                    g_f = mg * float(grad(z0)) if grad is not None else 0.0
                 if F > g_f + ca:
                     stopped = False
                 else:
                     if order:
-                        z[2] = Phi[2][2] * z[2] + Gam[2] * w
-                    z[1] = 0.0
+                        z2 = p22 * z2 + g2 * w
+                    z1 = 0.0
                     t += h
                     p_last = 0.0
                     continue
-            n0 = nl(z[0], z[1], t)
-            if nz == 3:  # unrolled: this line is the hottest of every point-mass episode
-                z0, z1, z2 = z
-                a = [
-                    r[0] * z0 + r[1] * z1 + r[2] * z2 + g * w + p * n0
-                    for r, g, p in zip(Phi, Gam, P1, strict=True)
-                ]
+            # n0 = N(z, t): Davis + gradient + disturbances (as _nl_single)
+            av = z1 if z1 >= 0.0 else -z1
+            f = ca + cb * av + cc * av * av
+            f = f if z1 > 0 else (-f if z1 < 0 else 0.0)
+            if tab is not None:
+                j = bisect_right(xl, z0) - 1
+                f += mg * (y0l[j] + sl[j] * (z0 - xl[j]))
+            elif grad is not None:
+                f += mg * float(grad(z0))
+            if dists:
+                wd = 0.0
+                for dist in dists:
+                    wd += dist.accel(t)
+                f += m0 * wd
+            n0 = -f * minv
+            # a = Φ z + Γ w + h φ1 N(z)  (row by row, the operations of the matrix code)
+            if order:
+                a0 = p00 * z0 + p01 * z1 + p02 * z2 + g0 * w + q0 * n0
+                a1 = p10 * z0 + p11 * z1 + p12 * z2 + g1 * w + q1 * n0
+                a2 = p20 * z0 + p21 * z1 + p22 * z2 + g2 * w + q2 * n0
             else:
-                a = [
-                    sum(Phi[i][j] * z[j] for j in range(nz)) + Gam[i] * w + P1[i] * n0
-                    for i in range(nz)
-                ]
-            n1 = nl(a[0], a[1], t + h)
-            dn = n1 - n0
-            z_new = [ai + p2 * dn for ai, p2 in zip(a, P2, strict=True)]
-            v_old, v_new = z[1], z_new[1]
-            p1 = (w if order == 0 else z_new[2]) * v_new
+                a0 = p00 * z0 + p01 * z1 + g0 * w + q0 * n0
+                a1 = p10 * z0 + p11 * z1 + g1 * w + q1 * n0
+            # n1 = N(a, t + h)
+            av = a1 if a1 >= 0.0 else -a1
+            f = ca + cb * av + cc * av * av
+            f = f if a1 > 0 else (-f if a1 < 0 else 0.0)
+            if tab is not None:
+                j = bisect_right(xl, a0) - 1
+                f += mg * (y0l[j] + sl[j] * (a0 - xl[j]))
+            elif grad is not None:
+                f += mg * float(grad(a0))
+            if dists:
+                wd = 0.0
+                for dist in dists:
+                    wd += dist.accel(t + h)
+                f += m0 * wd
+            dn = -f * minv - n0
+            # z_new = a + h φ2 (n1 − n0)
+            s_new = a0 + r0 * dn
+            v_new = a1 + r1 * dn
+            F_old = w if order == 0 else z2
+            if order:
+                z2 = a2 + r2 * dn
+            p1 = (w if order == 0 else z2) * v_new
             tot = p_last + p1
             mag = abs(p_last) + abs(p1)
-            wt += 0.25 * h * (mag + tot)
-            wb += 0.25 * h * (mag - tot)
+            wt += h2 * (mag + tot)
+            wb += h2 * (mag - tot)
             p_last = p1
-            F_old = w if order == 0 else z[2]
-            if v_old > 0.0 and 0.0 < v_new < hold and v_new < v_old and F_old <= ca:
-                z_new[1] = 0.0
+            if z1 > 0.0 and 0.0 < v_new < hold and v_new < z1 and F_old <= ca:
+                v_new = 0.0
                 stopped = True
-            elif v_old > 0.0 and v_new <= 0.0:
-                frac = v_old / (v_old - v_new)
-                z_new[0] = z[0] + 0.5 * z[1] * frac * h
-                z_new[1] = 0.0
+            elif z1 > 0.0 and v_new <= 0.0:
+                frac = z1 / (z1 - v_new)
+                s_new = z0 + 0.5 * z1 * frac * h
+                v_new = 0.0
                 stopped = True
-            z = z_new
+            z0, z1 = s_new, v_new
             t += h
-        self.z = np.array(z)
+        self._head = head
+        self.z = np.array([z0, z1, z2] if order else [z0, z1])
         self.t = t
         self.stopped = stopped
-        self._w_now = np.array([w if k else self._w_now[0]])
-        self._p_last = np.array([p_last])
+        self._w_now = w
+        self._p_last = p_last
         self.work_traction_J += wt
         self.work_brake_J += wb
 
-    def _substep(self, w: np.ndarray) -> None:
+    def _substep(
+        self, w: np.ndarray, gw: np.ndarray | None = None, wl: list[float] | None = None
+    ) -> None:
+        """One ETD2 sub-step with input ``w`` (``gw = Γ w`` and ``wl = w.tolist()``
+        optionally precomputed), energy bookkeeping and the standstill logic."""
         n, h = self.n, self.h
         z = self.z
         if self.stopped:
@@ -456,16 +707,63 @@ class TrainPlant:
                 self.t += h
                 self._p_last = np.zeros(n)
                 return
-        z_new = self._integ.step(z, w, self.t, self._nonlinear)
-        v_old = z[n]
-        v_new = z_new[n]
+        zl = z.tolist()
+        grad = self.gradient_permil
+        tab = self._grad_table() if grad is not None else None
+        if self._lead_fast or (grad is not None and tab is None):
+            z_new = self._integ.step(z, w, self.t, self._nonlinear, gw)
+        else:
+            # ETD2Integrator.step with the nonlinear term evaluated on floats (the same
+            # matrix products and additions, in place where the operands are fresh)
+            ig = self._integ
+            t = self.t
+            buf = self._nl_arr
+            n0 = self._nonlinear_floats(zl, t, n, tab)
+            buf[:] = n0
+            z_new = ig.Phi.dot(z)
+            z_new += ig.Gamma.dot(w) if gw is None else gw
+            z_new += ig.P1.dot(buf)  # z_new holds a here
+            buf[:] = self._nonlinear_floats(z_new.tolist(), t + h, n, tab, n0)  # n1 − n0
+            z_new += ig.P2.dot(buf)
+        znl = z_new.tolist()
+        v_old = zl[n]
+        v_new = znl[n]
         # trapezoidal integration of the traction (F v > 0) and braking (F v < 0) powers
-        p1 = self._forces(z_new) * z_new[n : 2 * n]
+        # (the sums of the n per-car terms in numpy's order of summation, see _np_sum)
+        if self.actuator.order == 0:
+            if wl is None:
+                w_now = self._w_now
+                wl = [w_now] if type(w_now) is float else w_now.tolist()
+            F = wl
+        else:
+            F = znl[2 * n : 3 * n]
         p0 = self._p_last
-        tot = p0 + p1
-        mag = abs(p0) + abs(p1)
-        self.work_traction_J += 0.25 * h * float((mag + tot).sum())
-        self.work_brake_J += 0.25 * h * float((mag - tot).sum())
+        if type(p0) is not list:
+            p0 = [p0] if type(p0) is float else p0.tolist()
+        p1 = []
+        if n < 8:
+            s_up = s_down = 0.0  # (the terms are >= +0, so 0.0 + x0 is x0)
+            for a_, f, v in zip(p0, F, znl[n : 2 * n], strict=True):
+                b_ = f * v
+                p1.append(b_)
+                tot = a_ + b_
+                mag = abs(a_) + abs(b_)
+                s_up += mag + tot
+                s_down += mag - tot
+        else:
+            up = []
+            down = []
+            for a_, f, v in zip(p0, F, znl[n : 2 * n], strict=True):
+                b_ = f * v
+                p1.append(b_)
+                tot = a_ + b_
+                mag = abs(a_) + abs(b_)
+                up.append(mag + tot)
+                down.append(mag - tot)
+            s_up = _np_sum(up)
+            s_down = _np_sum(down)
+        self.work_traction_J += 0.25 * h * s_up
+        self.work_brake_J += 0.25 * h * s_down
         self._p_last = p1
         if v_old > 0.0 and 0.0 < v_new < self.HOLD_SPEED_MPS and v_new < v_old and self._braking():
             # crawling to a halt under braking: the holding brake takes over
@@ -482,7 +780,7 @@ class TrainPlant:
 
     def _forces(self, z: np.ndarray) -> np.ndarray:
         if self.actuator.order == 0:
-            return self._w_now
+            return self._forces_input()
         return z[2 * self.n : 3 * self.n]
 
     def _braking(self) -> bool:
@@ -524,13 +822,56 @@ class TrainPlant:
 
     @property
     def force_total(self) -> float:
-        return float(np.sum(self._forces(self.z)))
+        return _np_sum(self._forces(self.z).tolist())  # float(np.sum(...))
 
     @property
     def accel(self) -> float:
         """Lead-car acceleration [m/s²] from the full model right now."""
-        dz = self.A @ self.z + self.B @ self._w_now
-        return 0.0 if self.stopped else float(dz[self.n] + self._nonlinear(self.z, self.t)[0])
+        if self.stopped:
+            return 0.0
+        if self._lead_fast:
+            return self._accel_single(self.z.tolist())
+        z = self.z
+        n = self.n
+        # (A z + B w)[n]: the lead car's row of B has one entry, on its own input (ideal
+        # actuator) or none, so B w contributes that product exactly, or zero
+        dz = float(self.A.dot(z)[n])
+        if self.actuator.order == 0:
+            dz = dz + self._acc_coef * float(self._forces_input()[0])
+        tab = self._grad_table()
+        if self.gradient_permil is None or tab is not None:
+            nl0 = self._nonlinear_floats(z.tolist(), self.t, 1, tab)[0]  # the lead car only
+        else:
+            nl0 = float(self._nonlinear(z, self.t)[0])
+        return dz + nl0
+
+    def _forces_input(self) -> np.ndarray:
+        """The input currently applied (post dead time), as an array."""
+        w = self._w_now
+        if type(w) is float:  # stored by the single-car path
+            w = self._w_now = np.array([w])
+        return w
+
+    def _accel_single(self, z: list[float]) -> float:
+        """:attr:`accel` of a moving single car from its state list ``z``.
+
+        ``A z + B w`` has one non-zero product in the speed row (see ``_acc_coef``), so
+        the matrix products reduce exactly to that product.
+        """
+        if self.actuator.order:
+            F = z[2]
+        else:
+            w = self._w_now
+            F = w if type(w) is float else float(w[0])
+        return self._acc_coef * F + self._nl_single(z[0], z[1], self.t)
+
+    def _lead_state(self) -> tuple[float, float, float, float]:
+        """``(t, s, v, accel)`` of the lead car: the scalar read-outs of one observation."""
+        if self._lead_fast:
+            z = self.z.tolist()
+            return self.t, z[0], z[1], 0.0 if self.stopped else self._accel_single(z)
+        z = self.z
+        return self.t, float(z[0]), float(z[self.n]), self.accel
 
     def coupler_deformations(self) -> np.ndarray:
         """Extension of each coupler beyond its rest length [m] (n−1 values)."""
@@ -548,3 +889,55 @@ class TrainPlant:
         ke = 0.5 * float(np.sum(self.m_inertial * v * v))
         pe = 0.5 * self.k * float(np.sum(self.coupler_deformations() ** 2))
         return ke + pe
+
+    def _coupler_extremes(self) -> tuple[float, float]:
+        """Coupler force [N] and deformation [m] of largest magnitude (the first on ties).
+
+        Floats for the runner's per-step record: the same values as
+        ``cf[np.argmax(np.abs(cf))]`` of :meth:`coupler_forces` (resp. deformations).
+        """
+        n = self.n
+        z = self.z.tolist()
+        k, d = self.k, self.d
+        f_max = q_max = 0.0
+        a_f = a_q = -1.0
+        for i in range(n - 1):
+            q = z[i] - z[i + 1]
+            f = k * q + d * (z[n + i] - z[n + i + 1])
+            if abs(f) > a_f:
+                f_max, a_f = f, abs(f)
+            if abs(q) > a_q:
+                q_max, a_q = q, abs(q)
+        return f_max, q_max
+
+
+def _np_sum(x: list[float]) -> float:
+    """``float(np.sum(x))`` of a short list, in numpy's order of summation.
+
+    numpy adds up to 7 numbers left to right and longer runs (up to its 128-element
+    block) in 8 interleaved partial sums, combined pairwise; restating that keeps the
+    float paths' energy integrals identical to the array code's.
+    """
+    n = len(x)
+    if n < 8:
+        r = x[0]
+        for y in x[1:]:
+            r += y
+        return r
+    if n > 128:
+        return float(np.sum(x))
+    r0, r1, r2, r3, r4, r5, r6, r7 = x[:8]
+    m = n - n % 8
+    for i in range(8, m, 8):
+        r0 += x[i]
+        r1 += x[i + 1]
+        r2 += x[i + 2]
+        r3 += x[i + 3]
+        r4 += x[i + 4]
+        r5 += x[i + 5]
+        r6 += x[i + 6]
+        r7 += x[i + 7]
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    for y in x[m:]:
+        res += y
+    return res
