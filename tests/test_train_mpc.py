@@ -44,6 +44,31 @@ def test_terminal_cost_satisfies_lyapunov_equation():
     np.testing.assert_allclose(Px, P[:n, :n])
 
 
+def test_terminal_cost_falls_back_to_doubling_when_schur_method_fails(monkeypatch):
+    """An RL agent's extreme weights made scipy's QZ reordering give up inside an env
+    step; the doubling iteration then gives the same stabilising solution."""
+    import train_envs.controllers.train_mpc as tm
+
+    sc = get_scenario("paper000_single_section")
+    c = make_controller("sempc", sc)
+    c.reset(sc.control_context())
+    Q, R, _ = c._weights()
+    Qx = c._C.T @ Q @ c._C
+    P_ref, K_ref, _ = augmented_terminal_cost(c._Ad, c._Bd, Qx, R)
+
+    def failing(*args, **kwargs):
+        raise ValueError("Reordering of (A, B) failed")
+
+    monkeypatch.setattr(tm, "solve_discrete_are", failing)
+    P, K, _ = augmented_terminal_cost(c._Ad, c._Bd, Qx, R)
+    np.testing.assert_allclose(P, P_ref, rtol=1e-8, atol=1e-10 * np.abs(P_ref).max())
+    np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9)
+    # and the controller keeps running with parameters at the edges of their bounds
+    c.set_params(q_dx=1e8, q_dv=1e-2, r_du=1e-6, q_s=1e2, q_v=1e-2)
+    res = simulate(sc, c, seed=0)
+    assert np.isfinite(res.metrics["E_p_m"])
+
+
 def test_sempc_stops_accurately_and_beats_plain_mpc(runs000):
     for sc in ("paper000_single_section", "paper000_disturbance_constant"):
         se, mp = runs000[sc, "sempc"].metrics, runs000[sc, "mpc000"].metrics

@@ -73,10 +73,52 @@ def augmented_terminal_cost(
     Ba = np.vstack([B, np.eye(m)])
     Qa = np.zeros((n + m, n + m))
     Qa[:n, :n] = Qx
-    P = solve_discrete_are(Aa, Ba, Qa, R)
+    try:
+        P = solve_discrete_are(Aa, Ba, Qa, R)
+    except (ValueError, np.linalg.LinAlgError):
+        # scipy's QZ reordering gives up on badly scaled weights (e.g. an RL agent's
+        # q_dx = 1e8 with r_du = 1e-6): the doubling iteration has no reordering step
+        P = dare_doubling(Aa, Ba, Qa, R)
     P = 0.5 * (P + P.T)
     K = np.linalg.solve(R + Ba.T @ P @ Ba, Ba.T @ P @ Aa)
     return P, K, P[:n, :n].copy()
+
+
+def dare_doubling(
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, tol: float = 1e-12
+) -> np.ndarray:
+    """Stabilising solution of the DARE by the structure-preserving doubling algorithm.
+
+    ``P = AᵀPA − AᵀPB (R + BᵀPB)⁻¹ BᵀPA + Q`` (Chu, Fan & Lin, "A structure-preserving
+    doubling algorithm for continuous-time algebraic Riccati equations", Linear
+    Algebra Appl. 396, 2005, and its discrete-time form): with ``A₀ = A``,
+    ``G₀ = B R⁻¹ Bᵀ``, ``H₀ = Q``, each step ``W = I + G H``::
+
+        A ← A W⁻¹ A,   G ← G + A W⁻¹ G Aᵀ,   H ← H + Aᵀ H W⁻¹ A
+
+    and ``H → P`` quadratically.  Used where scipy's Schur method fails; raises
+    ``np.linalg.LinAlgError`` if it does not converge in 80 doublings.
+    """
+    n = A.shape[0]
+    Ak = np.array(A, dtype=float)
+    G = B @ np.linalg.solve(R, B.T)
+    H = np.array(Q, dtype=float)
+    eye = np.eye(n)
+    for _ in range(80):
+        W = eye + G @ H
+        WA = np.linalg.solve(W, Ak)
+        WG = np.linalg.solve(W, G)
+        H_new = H + Ak.T @ H @ WA
+        G = G + Ak @ WG @ Ak.T
+        Ak = Ak @ WA
+        H_new = 0.5 * (H_new + H_new.T)
+        if not np.all(np.isfinite(H_new)):
+            break
+        done = np.linalg.norm(H_new - H, 1) <= tol * max(1.0, np.linalg.norm(H_new, 1))
+        H = H_new
+        if done:
+            return H
+    raise np.linalg.LinAlgError("DARE doubling iteration did not converge")
 
 
 class _TrainMPCBase(Controller):
