@@ -205,3 +205,161 @@ def test_ppo_smoke(env_id):
     obs, _ = env.reset(seed=0)
     action, _ = model.predict(obs, deterministic=True)
     assert env.action_space.contains(action)
+
+
+# ------------------------------------------------- hot path and env reuse (evaluate)
+def _reference_observation(env) -> np.ndarray:
+    """The documented observation, computed the straightforward (vectorised) way."""
+    from train_envs.plants.lookup import gradient_table
+
+    b = env.unwrapped
+    sc, loop = b.scenario, b.loop
+    p, ref = loop.plant, sc.reference
+    t, s, v = p.t, p.s, p.v
+    v_max = max(float(np.max(sc.track.speed_limits_mps)), 1.0)
+    if np.isfinite(sc.train.max_speed_mps):
+        v_max = min(v_max, sc.train.max_speed_mps) or v_max
+    end = sc.s_stop_m if sc.s_stop_m is not None else ref.end_m
+    pts = s + np.linspace(0.0, float(b.config["preview_m"]), int(b.config["preview_points"]))
+    u = float(np.sum(loop.u_prev))
+    u_scale = sc.train.max_traction_force_N
+    du = (u - b._u_before) / (u_scale * sc.dt_ctrl_s * b.config["decision_interval"])
+    obs = np.concatenate(
+        [
+            [
+                (ref.v_ref(t, s) - v) / 5.0,
+                (ref.s_ref(t) - s) / 50.0,
+                v / v_max,
+                (end - s) / 1000.0,
+                (float(ref.profile.t_at_s(s)) - t) / 30.0,
+            ],
+            gradient_table(sc.track)(pts) * (1.0 / 30.0),
+            sc.track.speed_limit_at(pts) * (1.0 / v_max),
+            [u / u_scale, du],
+            np.asarray(b._prev_action, dtype=float),
+            [float(bool(loop.last_info.get("fallback", False)))],
+        ]
+    )
+    return np.clip(np.nan_to_num(obs), -10.0, 10.0).astype(np.float32)
+
+
+@pytest.mark.parametrize("env_id", [PID_ID, "TrainEnvs/Section000-v0"])
+def test_observation_and_costs_follow_their_definitions(env_id):
+    env = gym.make(env_id, config={"max_episode_steps": 12})
+    b = env.unwrapped
+    obs, _ = env.reset(seed=1)
+    np.testing.assert_array_equal(obs, _reference_observation(env))
+    assert obs.dtype == np.float32 and len(obs) == len(b.observation_names)
+    action = np.clip(params_to_action(env, {}) + 0.3, -1, 1)
+    action[0] = 1.7  # clipped, counted
+    k_rows, a_prev, returned, done = [0], b.loop.plant.accel, [], False
+    while not done:
+        obs, r, term, trunc, info = env.step(action)
+        returned.append(obs)
+        np.testing.assert_array_equal(obs, _reference_observation(env))
+        assert obs is not b._observe()  # a fresh array every call
+        k_rows.append(b.loop.k)
+        assert info["action_clipped"] == 1 and info["action_clipped_total"] == len(k_rows) - 1
+        # the per-step costs from the runner's rows, as documented
+        df = b.loop.dataframe()
+        rows = df.iloc[k_rows[-2] : k_rows[-1]]
+        dt = b.scenario.dt_ctrl_s
+        e_v = rows["v_ref_mps"].to_numpy() - rows["v_mps"].to_numpy()
+        a = rows["a_mps2"].to_numpy()
+        jerk = np.diff(a, prepend=a_prev) / dt
+        a_prev = a[-1]
+        over = np.maximum(rows["v_mps"].to_numpy() - rows["v_limit_mps"].to_numpy(), 0.0)
+        c = info["objectives"]
+        assert list(c) == list(train_envs.envs.OBJECTIVES)
+        assert c["tracking"] == pytest.approx(float(e_v @ e_v) * dt, rel=1e-12, abs=1e-300)
+        assert c["jerk"] == pytest.approx(float(jerk @ jerk) * dt, rel=1e-12, abs=1e-300)
+        sat = rows["saturated"].sum()
+        assert c["violation"] == pytest.approx((over.sum() + sat) * dt, rel=1e-12, abs=1e-300)
+        w = b._weights
+        assert r == pytest.approx(-sum(w[k] * c[k] for k in c), rel=1e-12, abs=1e-300)
+        done = term or trunc
+    # the arrays handed out earlier were not overwritten by later steps
+    assert not all(np.array_equal(returned[0], o) for o in returned[1:])
+    with pytest.raises(ValueError, match="finite"):
+        env.reset(seed=0)
+        env.step(np.full(action.shape, np.inf))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(action[:-1])
+
+
+def test_episode_metrics_from_dataframe_or_columns_agree_bitwise():
+    from train_envs.metrics import episode_metrics
+
+    env = gym.make("TrainEnvs/Section000-v0", config={"max_episode_steps": 20})
+    env.reset(seed=0)
+    done = False
+    while not done:
+        *_, term, trunc, info = env.step(params_to_action(env, {}))
+        done = term or trunc
+    loop = env.unwrapped.loop
+    df = loop.dataframe()
+    df.loc[2, "saturated"] = np.nan  # pandas skips missing values: so must the columns path
+    kw = {"dt_s": loop.dt, "s_stop_m": 100.0, "scheduled_time_s": 5.0, "du_max_Nps": 1e5}
+    a = episode_metrics(df, **kw)
+    b = episode_metrics({c: df[c].to_numpy() for c in df.columns}, **kw)
+    assert a == b and a["max_coupler_force_N"] > 0
+    assert info["episode_metrics"] == loop.metrics()
+
+
+def _non_default_params(env_id, phase):
+    env = gym.make(env_id)
+    specs = env.unwrapped.param_specs
+    env.close()
+    return {p.name: p.from_unit(0.6 * np.cos(i + phase)) for i, p in enumerate(specs)}
+
+
+@pytest.mark.parametrize(
+    "env_id, config",
+    [
+        (PID_ID, {}),
+        # a real line: reset samples the station pair from the seed
+        ("TrainEnvs/Yizhuang-v0", {"max_episode_steps": 25}),
+        # RSMPC keeps its QPs across episodes: a reused env gets a fresh controller
+        ("TrainEnvs/Stopping001-v0", {}),
+    ],
+)
+def test_reused_env_evaluates_like_a_fresh_env_bitwise(env_id, config):
+    from train_envs.envs.evaluation import ENV_CACHE, clear_env_cache
+
+    A, B = _non_default_params(env_id, 0.3), _non_default_params(env_id, 2.0)
+    B1 = dict(list(B.items())[:1])  # the others: the env's defaults, not A's values
+    fresh = evaluate(env_id, B, seeds=[0, 1], config=config)
+    fresh1 = evaluate(env_id, B1, seeds=[2], config=config)
+    clear_env_cache()
+    hits = ENV_CACHE.hits
+    evaluate(env_id, A, seeds=[5], config=config, reuse_env=True)
+    reused = evaluate(env_id, B, seeds=[0, 1], config=config, reuse_env=True)
+    evaluate(env_id, A, seeds=[0], config=config, reuse_env=True)
+    reused1 = evaluate(env_id, B1, seeds=[2], config=config, reuse_env=True)
+    assert ENV_CACHE.hits - hits == 3 and len(ENV_CACHE) == 1
+    pd.testing.assert_frame_equal(fresh, reused, check_exact=True)
+    pd.testing.assert_frame_equal(fresh1, reused1, check_exact=True)
+    clear_env_cache()
+    assert len(ENV_CACHE) == 0
+
+
+def test_env_cache_is_bounded_and_lends_each_env_once():
+    from train_envs.envs.evaluation import EnvCache
+
+    cache = EnvCache(maxsize=2)
+    e1 = cache.acquire(PID_ID, {})
+    e2 = cache.acquire(PID_ID, {})  # e1 is lent out: a second env
+    assert e1 is not e2 and cache.misses == 2
+    cache.release(PID_ID, {}, e1)
+    cache.release(PID_ID, {}, e2)
+    assert cache.acquire(PID_ID, {}) is e2 and cache.hits == 1  # most recent first
+    cache.release(PID_ID, {}, e2)
+    cfg = {"decision_interval": 3}
+    e3 = cache.acquire(PID_ID, cfg)  # another config: another env
+    assert e3.unwrapped.config["decision_interval"] == 3
+    cache.release(PID_ID, cfg, e3)
+    assert len(cache) == 2  # bounded: the least recently used (e1) was closed
+    assert cache.acquire(PID_ID, {"decision_interval": 3}) is e3
+    assert EnvCache.key(PID_ID, {"x": object()}) is None  # not JSON-able: no reuse
+    cache.clear()
+    assert len(cache) == 0

@@ -587,3 +587,38 @@ def test_summarize_normalizations_and_target_subproblem():
     assert np.allclose(nadir - ideal, [10, 1])
     with pytest.raises(ValueError, match="defaults"):
         summarize(df.copy(), ["f1", "f2"], normalization="defaults")
+
+
+# ------------------------------------------------------- env reuse per worker
+@dataclass(frozen=True)
+class CacheProbeTask:
+    """Runs env tasks one after the other in one worker; F = hits of its env cache."""
+
+    tasks: tuple
+
+    def run(self):
+        from train_envs.envs.evaluation import ENV_CACHE
+
+        hits = ENV_CACHE.hits
+        outs = [t.run() for t in self.tasks]
+        return {"F": [float(ENV_CACHE.hits - hits)], "G": [], "metrics": {"outs": outs}}
+
+
+def test_env_tasks_reuse_one_env_per_worker_with_fresh_env_results():
+    from train_envs.envs.evaluation import clear_env_cache
+    from tuners.backends import ProcessBackend
+    from tuners.problem import run_task
+
+    p = EnvTuningProblem(PID, seeds=[0, 1])
+    xs = [np.full(3, 0.4), p.default_x(), np.array([-0.5, 0.2, 0.9])]
+    tasks = tuple(p.make_task(x) for x in xs)
+    fresh = []
+    for t in tasks:  # each on a newly made env
+        clear_env_cache()
+        fresh.append(t.run())
+    clear_env_cache()
+    serial = run_task(CacheProbeTask(tasks))
+    assert serial["F"] == [2.0] and serial["metrics"]["outs"] == fresh
+    with ProcessBackend(workers=1) as backend:  # spawned worker: its own cache
+        (out,) = backend.run([CacheProbeTask(tasks)])
+    assert out["F"] == [2.0] and out["metrics"]["outs"] == fresh

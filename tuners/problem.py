@@ -106,12 +106,16 @@ class EnvTask:
         import train_envs  # noqa: F401  (registers the ids in a fresh worker)
         from train_envs.envs import evaluate
 
+        # reuse_env: the worker process (pool worker, Dask worker or the driver itself
+        # with the serial backend) keeps the env it built for this (env_id, config) and
+        # resets it with each seed, which gives the table a fresh env gives, bit for bit
         df = evaluate(
             self.env_id,
             dict(self.params),
             seeds=list(self.seeds),
             config=json.loads(self.config_json),
             label="tuner",
+            reuse_env=True,
         )
         cols = list(self.objectives) + [c for c, _ in self.constraints]
         missing = [c for c in cols if c not in df.columns]
@@ -310,7 +314,7 @@ class EnvTuningProblem(TaskProblem):
             if base.config["action_mode"] != "absolute":
                 raise ValueError("tuning needs the env's action_mode='absolute'")
             specs = {p.name: p for p in base.param_specs}
-            self.defaults = dict(base.controller.get_params())
+            self.defaults = dict(base.default_params())
             scenario = base.scenario
         finally:
             env.close()

@@ -62,6 +62,7 @@ from train_envs.simulation import ClosedLoop
 
 OBJECTIVES = ("tracking", "jerk", "energy", "violation", "stop", "punctuality")
 OBS_CLIP = 10.0
+_INV_GRAD = 1.0 / 30.0  # gradient feature scale [1/‰]
 
 
 def _merge(base: dict[str, Any], update: Mapping[str, Any], path: str = "config") -> dict[str, Any]:
@@ -160,9 +161,12 @@ class TrainTuningEnv(gym.Env):
         self._sections: list[tuple[int, int]] | None = None
         self._section_cache: dict[tuple[int, int], Scenario] = {}
         self.scenario = self._initial_scenario()
+        self._scenario0 = self.scenario  # the controller is built for this one
         self.controller: Controller = make_controller(
             cfg["controller"], self.scenario, **cfg["controller_params"]
         )
+        #: whether actions have set non-default parameters since the controller was built
+        self._params_changed = False
         specs = {p.name: p for p in self.controller.tunable_params()}
         names = list(specs) if cfg["action_params"] is None else list(cfg["action_params"])
         for n in names:
@@ -178,16 +182,50 @@ class TrainTuningEnv(gym.Env):
         n = len(self.param_specs)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(n,), dtype=np.float32)
 
+        self._base_unit = [p.to_unit(self._base_params[p.name]) for p in self.param_specs]
+
         self.observation_names = self._observation_names()
         self._n_preview = int(cfg["preview_points"])
         self._preview_offsets = np.linspace(0.0, float(cfg["preview_m"]), self._n_preview)
-        self._obs_buf = np.zeros(len(self.observation_names))
+        self._preview_list = self._preview_offsets.tolist()
         self.observation_space = spaces.Box(
             -OBS_CLIP, OBS_CLIP, shape=(len(self.observation_names),), dtype=np.float32
         )
         self.loop = ClosedLoop(self.scenario, self.controller)
         self._weights = {k: float(cfg["reward_weights"].get(k, 0.0)) for k in OBJECTIVES}
+        # hot-path copies of the (validated) config
+        self._w = tuple(self._weights[k] for k in OBJECTIVES)
+        self._n_ctrl = int(cfg["decision_interval"])
+        self._absolute = cfg["action_mode"] == "absolute"
+        self._delta_scale = float(cfg["delta_scale"])
         self._fig = None
+
+    def default_params(self) -> dict[str, float]:
+        """The controller parameters every episode starts from (defaults + config's
+        ``controller_params``), whatever the last episode's actions set."""
+        return dict(self._base_params)
+
+    def renew_controller(self) -> bool:
+        """Rebuild the controller (and runner) if actions have changed its parameters.
+
+        ``reset`` re-initialises what an episode depends on, except data a controller
+        deliberately keeps across episodes that depend on the parameters it ran with:
+        the RSMPC / tube MPC keep their QPs, built with the weights of the episode that
+        first needed them and updated in place afterwards, which agrees with a fresh
+        build only to rounding. After this call the env is as good as newly made: an
+        evaluation on it equals one on a fresh env bit for bit (what
+        :func:`~train_envs.envs.evaluate` relies on when it reuses envs). Returns whether
+        it rebuilt anything; takes effect at the next ``reset``.
+        """
+        if not self._params_changed:
+            return False
+        cfg = self.config
+        self.controller = make_controller(
+            cfg["controller"], self._scenario0, **cfg["controller_params"]
+        )
+        self.loop = ClosedLoop(self._scenario0, self.controller)
+        self._params_changed = False
+        return True
 
     # ----------------------------------------------------------------- scenarios
     def _with_disturbance(self, sc: Scenario) -> Scenario:
@@ -239,37 +277,66 @@ class TrainTuningEnv(gym.Env):
         names += ["solver_flag"]
         return names
 
-    def _observe(self) -> np.ndarray:
-        sc, loop = self.scenario, self.loop
-        p = loop.plant
-        t, s, v = p.t, p.s, p.v
+    def _prepare_episode(self) -> None:
+        """Per-episode constants of the hot path (the scenario may change at reset)."""
+        sc = self.scenario
         ref = sc.reference
-        v_max = self._v_scale
-        end = sc.s_stop_m if sc.s_stop_m is not None else ref.end_m
-        t_ref = float(ref.profile.t_at_s(s))
-        pts = s + self._preview_offsets
-        grads = gradient_table(sc.track)(pts) * (1.0 / 30.0)
-        lims = sc.track.speed_limit_at(pts) * (1.0 / v_max)
-        u = float(loop.u_prev.sum())
-        u_scale = sc.train.max_traction_force_N
-        du = (u - self._u_before) / (u_scale * sc.dt_ctrl_s * self.config["decision_interval"])
-        obs = self._obs_buf
-        obs[:5] = (
-            (ref.v_ref(t, s) - v) / 5.0,
-            (ref.s_ref(t) - s) / 50.0,
-            v / v_max,
-            (end - s) / 1000.0,
-            (t_ref - t) / 30.0,
+        v_scale = max(float(np.max(sc.track.speed_limits_mps)), 1.0)
+        if math.isfinite(sc.train.max_speed_mps):
+            v_scale = min(v_scale, sc.train.max_speed_mps) or v_scale
+        self._v_scale = v_scale
+        self._inv_v_scale = 1.0 / v_scale
+        self._end = sc.s_stop_m if sc.s_stop_m is not None else ref.end_m
+        self._v_ref_fn = ref.v_ref
+        self._s_ref_fn = ref.s_ref
+        self._t_at_s_fn = ref.profile.t_at_s
+        self._grad_fn = gradient_table(sc.track)
+        self._limit_fn = sc.track.speed_limit_at
+        self._u_scale = sc.train.max_traction_force_N
+        self._du_scale = self._u_scale * sc.dt_ctrl_s * self.config["decision_interval"]
+        self._dt = sc.dt_ctrl_s
+        self._s_stop = sc.s_stop_m
+        self._t_sched = sc.scheduled_time_s
+        tr = sc.train
+        self._eta_t, self._eta_r = tr.traction_efficiency, tr.regen_efficiency
+
+    def _u_sum(self) -> float:
+        """Total command of the last control step (``float(np.sum(loop.u_prev))``)."""
+        u = self.loop.u_prev
+        if u.size == 1:
+            return u.item() + 0.0  # np.sum's value, -0.0 included
+        return float(u.sum())
+
+    def _observe(self) -> np.ndarray:
+        p = self.loop.plant
+        t, s, v = p.t, p.s, p.v
+        u = self._u_obs = self._u_sum()
+        obs = [
+            (self._v_ref_fn(t, s) - v) / 5.0,
+            (self._s_ref_fn(t) - s) / 50.0,
+            v / self._v_scale,
+            (self._end - s) / 1000.0,
+            (float(self._t_at_s_fn(s)) - t) / 30.0,
+        ]
+        # scalar look-ups (the same arithmetic as the vectorised ones)
+        grad, lim, inv_v = self._grad_fn, self._limit_fn, self._inv_v_scale
+        pts = [s + off for off in self._preview_list]
+        obs += [grad(x) * _INV_GRAD for x in pts]
+        obs += [lim(x) * inv_v for x in pts]
+        obs.append(u / self._u_scale)
+        obs.append((u - self._u_before) / self._du_scale)
+        obs += self._prev_action
+        obs.append(1.0 if self.loop.last_info.get("fallback", False) else 0.0)
+        # np.clip(np.nan_to_num(x), -OBS_CLIP, OBS_CLIP) on scalars; a fresh float32 array
+        return np.array(
+            [
+                (x if -OBS_CLIP <= x <= OBS_CLIP else OBS_CLIP if x > 0 else -OBS_CLIP)
+                if x == x
+                else 0.0
+                for x in obs
+            ],
+            dtype=np.float32,
         )
-        k = self._n_preview
-        obs[5 : 5 + k] = grads
-        obs[5 + k : 5 + 2 * k] = lims
-        j = 5 + 2 * k
-        obs[j : j + 2] = (u / u_scale, du)
-        na = self._prev_action.size
-        obs[j + 2 : j + 2 + na] = self._prev_action
-        obs[-1] = float(bool(loop.last_info.get("fallback", False)))
-        return np.clip(np.nan_to_num(obs), -OBS_CLIP, OBS_CLIP).astype(np.float32)  # copy
 
     # ------------------------------------------------------------- gym API
     def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None):
@@ -282,14 +349,13 @@ class TrainTuningEnv(gym.Env):
         episode_seed = int(self.np_random.integers(2**31 - 1))
         self.controller.set_params(**self._base_params)
         self.loop.reset(seed=episode_seed, scenario=self.scenario)
-        sc = self.scenario
-        self._v_scale = max(float(np.max(sc.track.speed_limits_mps)), 1.0)
-        if math.isfinite(sc.train.max_speed_mps):
-            self._v_scale = min(self._v_scale, sc.train.max_speed_mps) or self._v_scale
-        self._base_unit = [p.to_unit(self._base_params[p.name]) for p in self.param_specs]
-        self._unit = np.array(self._base_unit, dtype=float)
-        self._prev_action = self._unit.copy()
-        self._u_before = float(np.sum(self.loop.u_prev))
+        self._prepare_episode()
+        self._unit = list(self._base_unit)
+        self._prev_action = list(self._base_unit)
+        # what the controller holds now: a constant action skips set_params (see step)
+        self._applied_unit = list(self._base_unit)
+        self._applied_params = self.controller.get_params()
+        self._u_before = self._u_sum()
         self._a_prev = self.loop.plant.accel
         self._energy_prev = 0.0
         self._steps = 0
@@ -297,63 +363,96 @@ class TrainTuningEnv(gym.Env):
         cap = self.config["max_episode_steps"]
         self._max_steps = int(cap) if cap else None
         obs = self._observe()
-        return obs, {"scenario": sc.name, "params": self.controller.get_params()}
+        return obs, {"scenario": self.scenario.name, "params": dict(self._applied_params)}
 
-    def _apply_action(self, action: np.ndarray) -> int:
+    def _apply_action(self, action: np.ndarray) -> tuple[int, dict[str, float]]:
+        """Clip ``action`` and set the controller's parameters from it.
+
+        Returns the number of clipped components and the parameters now in force (a
+        fresh dict, for ``info``).
+        """
         a = np.asarray(action, dtype=float).reshape(-1)
-        if a.shape != (len(self.param_specs),):
-            raise ValueError(f"action must have shape ({len(self.param_specs)},), got {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"action must be finite, got {a}")
-        clipped = int(np.sum(np.abs(a) > 1.0))
-        a = np.clip(a, -1.0, 1.0)
-        if self.config["action_mode"] == "absolute":
-            unit = a
+        n = len(self.param_specs)
+        if a.shape != (n,):
+            raise ValueError(f"action must have shape ({n},), got {a.shape}")
+        clipped = 0
+        act = a.tolist()
+        for i, x in enumerate(act):
+            if -1.0 <= x <= 1.0:
+                continue
+            if 1.0 < x < math.inf:
+                act[i] = 1.0
+            elif -math.inf < x < -1.0:
+                act[i] = -1.0
+            else:  # NaN or inf
+                raise ValueError(f"action must be finite, got {a}")
+            clipped += 1
+        if self._absolute:
+            unit = act
         else:
-            unit = np.clip(self._unit + float(self.config["delta_scale"]) * a, -1.0, 1.0)
+            ds = self._delta_scale
+            unit = [min(1.0, max(-1.0, u + ds * x)) for u, x in zip(self._unit, act, strict=True)]
         self._unit = unit
-        self._prev_action = a
-        # the unit value of a base parameter maps back onto it exactly (from_unit and
-        # to_unit are inverse only up to rounding)
-        base = self._base_unit
-        self.controller.set_params(
-            **{
-                p.name: self._base_params[p.name] if u == base[i] else p.from_unit(u)
-                for i, (p, u) in enumerate(zip(self.param_specs, unit, strict=True))
-            }
-        )
-        return clipped
+        self._prev_action = act
+        # set_params only when the parameters change (a constant action, as the tuners
+        # apply, sets them once; setting the values the controller holds is a no-op)
+        params = self.controller.get_params()
+        if unit != self._applied_unit or params != self._applied_params:
+            # the unit value of a base parameter maps back onto it exactly (from_unit and
+            # to_unit are inverse only up to rounding)
+            base, base_params = self._base_unit, self._base_params
+            self.controller.set_params(
+                **{
+                    p.name: base_params[p.name] if u == base[i] else p.from_unit(u)
+                    for i, (p, u) in enumerate(zip(self.param_specs, unit, strict=True))
+                }
+            )
+            self._applied_unit = unit
+            self._applied_params = self.controller.get_params()
+            if unit != self._base_unit:
+                self._params_changed = True
+            params = dict(self._applied_params)
+        return clipped, params
 
     def step(self, action):
-        clipped = self._apply_action(action)
+        clipped, params = self._apply_action(action)
         self._clipped_total += clipped
-        loop, sc = self.loop, self.scenario
-        dt = sc.dt_ctrl_s
-        self._u_before = float(np.sum(loop.u_prev))
-        costs = dict.fromkeys(OBJECTIVES, 0.0)
-        tr = sc.train
+        loop = self.loop
+        dt = self._dt
+        self._u_before = self._u_obs  # the command of the last observation (loop.u_prev)
         k0 = loop.k
-        for _ in range(int(self.config["decision_interval"])):
+        for _ in range(self._n_ctrl):
             loop.step()
             if loop.done:
                 break
         # per-control-step costs from the rows the runner recorded (state at the start
         # of each control period)
-        rows = loop.columns(k0, loop.k)
-        v = rows["v_mps"]
-        e_v = rows["v_ref_mps"] - v
-        costs["tracking"] = float(e_v @ e_v) * dt
-        a = rows["a_mps2"]
-        jerk = np.diff(a, prepend=self._a_prev) / dt
-        costs["jerk"] = float(jerk @ jerk) * dt
+        k1 = loop.k
+        j0 = k0 - 1 if k0 > 0 else 0  # one row more: the previous step's last row
+        rows = loop.columns(j0, k1)
+        i0 = k0 - j0
+        v_all, a_all = rows["v_mps"], rows["a_mps2"]
+        v = v_all[i0:]
+        e_v = rows["v_ref_mps"][i0:] - v
+        tracking = float(e_v @ e_v) * dt
+        a = a_all[i0:]
+        if i0:  # = np.diff(a, prepend=self._a_prev): the previous row holds a_prev
+            jerk = (a - a_all[:-1]) / dt
+        else:
+            jerk = np.diff(a, prepend=self._a_prev) / dt
+        jerk_cost = float(jerk @ jerk) * dt
         self._a_prev = float(a[-1])
-        over = np.maximum(v - rows["v_limit_mps"], 0.0)
-        costs["violation"] = float(over.sum() + rows["saturated"].sum()) * dt
+        lim, sat = rows["v_limit_mps"][i0:], rows["saturated"][i0:]
+        if any(sat.tolist()) or not all(
+            x - y <= 0.0 for x, y in zip(v.tolist(), lim.tolist(), strict=True)
+        ):
+            over = np.maximum(v - lim, 0.0)
+            violation = float(over.sum() + sat.sum()) * dt
+        else:  # the usual case, no overspeed, no saturation (NaN takes the branch above)
+            violation = 0.0
         p = loop.plant
-        energy = (
-            p.work_traction_J / tr.traction_efficiency - tr.regen_efficiency * p.work_brake_J
-        ) / 3.6e6
-        costs["energy"] = energy - self._energy_prev
+        energy = (p.work_traction_J / self._eta_t - self._eta_r * p.work_brake_J) / 3.6e6
+        energy_cost = energy - self._energy_prev
         self._energy_prev = energy
         self._steps += 1
         terminated = loop.terminated
@@ -363,20 +462,40 @@ class TrainTuningEnv(gym.Env):
         info: dict[str, Any] = {
             "action_clipped": clipped,
             "action_clipped_total": self._clipped_total,
-            "params": self.controller.get_params(),
+            "params": params,
         }
+        stop = punctuality = 0.0
         if terminated or truncated:
-            if sc.s_stop_m is not None:
-                costs["stop"] = abs(loop.plant.s - sc.s_stop_m)
-            if sc.scheduled_time_s is not None:
-                costs["punctuality"] = abs(loop.plant.t - sc.scheduled_time_s) / 10.0
+            if self._s_stop is not None:
+                stop = abs(p.s - self._s_stop)
+            if self._t_sched is not None:
+                punctuality = abs(p.t - self._t_sched) / 10.0
             info["episode_metrics"] = loop.metrics()
-        reward = -sum(self._weights[k] * costs[k] for k in OBJECTIVES)
+        costs = {
+            "tracking": tracking,
+            "jerk": jerk_cost,
+            "energy": energy_cost,
+            "violation": violation,
+            "stop": stop,
+            "punctuality": punctuality,
+        }
+        w = self._w
+        # = -sum(w_k c_k for k in OBJECTIVES), the same additions in the same order
+        reward = -(
+            0.0
+            + w[0] * tracking
+            + w[1] * jerk_cost
+            + w[2] * energy_cost
+            + w[3] * violation
+            + w[4] * stop
+            + w[5] * punctuality
+        )
         info["objectives"] = costs
         # (no wall-clock timings in info: identical seeds must give identical infos)
+        last = loop.last_info
         for key in ("fallback", "slack_max", "iterations"):
-            if key in loop.last_info:
-                info[key] = loop.last_info[key]
+            if key in last:
+                info[key] = last[key]
         obs = self._observe()
         if self.render_mode == "human":
             self.render()
