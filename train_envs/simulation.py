@@ -272,37 +272,44 @@ class ClosedLoop:
         return {name: arr[k0:k1] for name, arr in self._cols.items()}
 
     # ---------------------------------------------------------------- results
-    def dataframe(self) -> pd.DataFrame:
-        """Rows recorded so far, plus a final row with the state after the last step."""
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The columns of :meth:`dataframe` as arrays (no pandas): rows so far + final row."""
         k = self.k
         self._flush()
-        data = {name: arr[:k].copy() for name, arr in self._cols.items()}
-        data.update({name: arr[:k].copy() for name, arr in self._info_cols.items()})
-        df = pd.DataFrame(data)
-        if k > 0 and self.plant is not None:
-            # final state row (after the last command was applied)
-            obs = self.observe()
-            last = {name: np.nan for name in df.columns}
-            last.update(
-                t_s=obs.t_s,
-                s_m=obs.s_m,
-                v_mps=obs.v_mps,
-                a_mps2=obs.a_mps2,
-                v_ref_mps=self.scenario.reference.v_ref(obs.t_s, obs.s_m),
-                s_ref_m=self.scenario.reference.s_ref(obs.t_s),
-                v_limit_mps=self.scenario.speed_limit_at(obs.s_m),
-                gradient_permil=self.scenario.gradient_at(obs.s_m),
-                u_cmd_N=float(np.sum(self.u_prev)),
-                u_N=float(np.sum(obs.forces_N)),
-                work_traction_J=self.plant.work_traction_J,
-                work_brake_J=self.plant.work_brake_J,
-                saturated=0.0,
-            )
-            df = pd.concat([df, pd.DataFrame([last])], ignore_index=True)
-        return df
+        cols = {**self._cols, **self._info_cols}
+        if not (k > 0 and self.plant is not None):
+            return {name: arr[:k].copy() for name, arr in cols.items()}
+        obs = self.observe()
+        sc = self.scenario
+        last = dict(
+            t_s=obs.t_s,
+            s_m=obs.s_m,
+            v_mps=obs.v_mps,
+            a_mps2=obs.a_mps2,
+            v_ref_mps=sc.reference.v_ref(obs.t_s, obs.s_m),
+            s_ref_m=sc.reference.s_ref(obs.t_s),
+            v_limit_mps=sc.speed_limit_at(obs.s_m),
+            gradient_permil=sc.gradient_at(obs.s_m),
+            u_cmd_N=float(np.sum(self.u_prev)),
+            u_N=float(np.sum(obs.forces_N)),
+            work_traction_J=self.plant.work_traction_J,
+            work_brake_J=self.plant.work_brake_J,
+            saturated=0.0,
+        )
+        out = {}
+        for name, arr in cols.items():
+            a = np.empty(k + 1)
+            a[:k] = arr[:k]
+            a[k] = last.get(name, np.nan)
+            out[name] = a
+        return out
+
+    def dataframe(self) -> pd.DataFrame:
+        """Rows recorded so far, plus a final row with the state after the last step."""
+        return pd.DataFrame(self.arrays())
 
     def metrics(self, df: pd.DataFrame | None = None) -> dict[str, float]:
-        df = self.dataframe() if df is None else df
+        df = self.arrays() if df is None else df
         sc, tr = self.scenario, self.scenario.train
         return episode_metrics(
             df,
