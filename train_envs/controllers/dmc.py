@@ -593,27 +593,51 @@ class DMCController(Controller):
         #: linearised Davis slope R'(v_nom) [N s/m]
         self.k_davis = tr.davis_b_Ns_per_m + 2.0 * tr.davis_c_Ns2_per_m2 * self.v_nom
         tau = ctx.actuator_tau_s if ctx.actuator_order else 0.0
-        #: step coefficients a_1 … a_N (m/s per m/s² of command)
-        self.a = step_response(
-            dt, self.N, kappa_1ps=self.k_davis / self.M, tau_s=tau, dead_time_s=ctx.dead_time_s
-        )
-        if not np.any(self.a[: self.P] > 0):
-            raise ValueError(
-                f"dead time {ctx.dead_time_s} s hides the whole prediction horizon "
-                f"({self.P} x {dt} s): increase prediction_horizon"
-            )
-        #: slope ratio of the tail extrapolation (1: linear; e^{−κΔt}: exact for the model)
-        self.tail_ratio = math.exp(-self.k_davis / self.M * dt) if self.tail == "model" else 1.0
-        #: P × L dynamic matrix and the unconstrained DMC gain dᵀ
-        self.A_dyn = dynamic_matrix(self.a, self.P, self.L, self.tail_ratio)
-        self.d_gain = dmc_gain(self.A_dyn, self.q, self.r)
         self._shares = input_shares(ctx)
         # rate bound (whole train, acceleration units): comfort jerk and ctx rate limit
         du = self.jerk_max * dt
         if math.isfinite(ctx.du_max_Nps):
             du = min(du, ctx.du_max_Nps * dt / float(np.max(self._shares)) / self.M)
         self.du_max_a = du
-        self.mpc = self._build_core()
+        # the model, the dynamic matrix and the QP depend on the train and the timing only
+        # (not on the tunable parameters): kept across resets of the same structure, the QP
+        # with OSQP's state reset so that every episode is reproducible on its own
+        key = (
+            dt,
+            self.k_davis,
+            self.M,
+            tau,
+            ctx.dead_time_s,
+            du,
+            envelope_N(tr, 0.0),
+        )
+        cached = getattr(self, "_model_cache", None)
+        if cached is not None and cached[0] == key:
+            _, self.a, self.tail_ratio, self.A_dyn, self.d_gain, self.mpc = cached
+            self.mpc.reset_solver()
+        else:
+            #: step coefficients a_1 … a_N (m/s per m/s² of command)
+            self.a = step_response(
+                dt,
+                self.N,
+                kappa_1ps=self.k_davis / self.M,
+                tau_s=tau,
+                dead_time_s=ctx.dead_time_s,
+            )
+            if not np.any(self.a[: self.P] > 0):
+                raise ValueError(
+                    f"dead time {ctx.dead_time_s} s hides the whole prediction horizon "
+                    f"({self.P} x {dt} s): increase prediction_horizon"
+                )
+            #: slope ratio of the tail extrapolation (1: linear; e^{−κΔt}: exact for the model)
+            self.tail_ratio = (
+                math.exp(-self.k_davis / self.M * dt) if self.tail == "model" else 1.0
+            )
+            #: P × L dynamic matrix and the unconstrained DMC gain dᵀ
+            self.A_dyn = dynamic_matrix(self.a, self.P, self.L, self.tail_ratio)
+            self.d_gain = dmc_gain(self.A_dyn, self.q, self.r)
+            self.mpc = self._build_core()
+            self._model_cache = (key, self.a, self.tail_ratio, self.A_dyn, self.d_gain, self.mpc)
         self._i = np.arange(1, self.P + 1)
         self._yN0: np.ndarray | None = None
         self._u_prev2 = 0.0  # u_a(k−2)
@@ -688,12 +712,33 @@ class DMCController(Controller):
         # μ_y(x) = clip((d − |x|)/(d − c), 0, 1) exactly when a = −d, b = −c, b − a = d − c
         # (the rising edge is the mirror image of the falling one) and b > a
         self._y_sym = ya == -yd and yb == -yc and yb - ya == yd - yc and yb > ya
-        self._fast_ref = self._check_fast_preview(ctx)
+        # the exactness checks of the restated look-ups run once per (profile, train)
+        # object pair (an env resets with the same objects every episode)
+        prof = getattr(ctx.reference, "profile", None)
+        mode = getattr(ctx.reference, "mode", None)
+        checked = getattr(self, "_fast_checked", None)
+        if (
+            checked is not None
+            and checked[0] is prof
+            and checked[1] is tr
+            and checked[2] == (mode, dt, P)
+        ):
+            self._fast_ref, self._fast_env, self._fast_lim = checked[3:]
+        else:
+            self._fast_ref = self._check_fast_preview(ctx)
+            self._fast_env = self._check_fast_envelope(tr)
+            self._fast_lim = self._check_fast_limits(tr)
+            self._fast_checked = (
+                prof,
+                tr,
+                (mode, dt, P),
+                self._fast_ref,
+                self._fast_env,
+                self._fast_lim,
+            )
         if self._fast_ref is not None:  # per segment i: t_{i+1}, and (t_i, v_i, a_i)
             tl, vl, al, _ = self._fast_ref
             self._fast_segs = (tl[1:], list(zip(tl[:-1], vl[:-1], al[:-1], strict=True)))
-        self._fast_env = self._check_fast_envelope(tr)
-        self._fast_lim = self._check_fast_limits(tr)
 
     def _link_views(self) -> None:
         """Fixed views into the per-run buffers that compute() writes through."""
