@@ -70,7 +70,7 @@ def bench_speed(env_id: str, n: int, workers: int) -> dict:
     be = ProcessBackend(workers=workers)
     try:
         t0 = time.perf_counter()
-        warm = rng.uniform(-1, 1, (workers, prob.n_var))
+        warm = rng.uniform(-1, 1, (4 * workers, prob.n_var))  # every worker imports + builds
         Evaluations(be).evaluate(prob, warm)  # spawns the pool (imports in each worker)
         t_spawn = time.perf_counter() - t0
         t0 = time.perf_counter()

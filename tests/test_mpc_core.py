@@ -224,6 +224,39 @@ def test_matches_independent_reference_on_random_instances(form):
     assert active >= 8  # the instances really exercise the constraints
 
 
+def test_unconstrained_first_is_exact_and_falls_back_to_osqp():
+    """The shortcut returns the reference optimum when no constraint is active and leaves
+    every other instance to OSQP; both kinds occur among these instances."""
+    shortcut = osqp_runs = 0
+    for seed in range(40):
+        case = random_instance(seed)
+        inst, data = case["inst"], case["data"]
+        if seed % 2:  # loose boxes so that some optima are unconstrained
+            inst = {
+                k: (
+                    10.0 * v
+                    if k in ("u_min", "u_max", "du_min", "du_max", "y_min", "y_max")
+                    and v is not None
+                    else v
+                )
+                for k, v in inst.items()
+            }
+            data = {**data, "y_max_override": None}
+        ref = reference_solve(inst, data)
+        sol = solve(
+            make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True), data
+        )
+        assert not sol.fallback
+        np.testing.assert_allclose(sol.U, ref["U"], atol=1e-5, err_msg=f"seed {seed}")
+        assert sol.cost == pytest.approx(ref["cost"], rel=1e-6, abs=1e-6)
+        if sol.status == "solved (unconstrained)":
+            shortcut += 1
+            assert sol.iterations == 0 and sol.solve_time_s == 0.0 and sol.slack_max == 0.0
+        else:
+            osqp_runs += 1
+    assert shortcut >= 5 and osqp_runs >= 5
+
+
 @pytest.mark.parametrize("form", ["condensed", "sparse"])
 def test_default_settings_are_accurate_on_random_instances(form):
     """With the default OSQP tolerances the plan is still within 1e-3 of the optimum."""

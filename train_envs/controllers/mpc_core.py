@@ -206,6 +206,7 @@ _SOLVED = 1
 _SOLVED_INACCURATE = 2
 # statuses worth a second, relaxed-and-polished attempt (time-limit hits are final)
 _RESCUE = (2, 3, 4, 7)  # solved inaccurate, primal infeasible (+inaccurate), max iter
+_UNCONSTRAINED = "solved (unconstrained)"
 _STATUS_INVALID_INPUT = -1
 _STATUS_EXCEPTION = -2
 
@@ -710,6 +711,12 @@ class LinearMPC:
         osqp_settings: overrides of the default OSQP settings (``eps_abs``,
             ``eps_rel``, ``max_iter``, ``polishing``, ``time_limit``, ...).
         fast_osqp: call OSQP's compiled solver object directly (default True).
+        unconstrained_first: (condensed form) before calling OSQP, take the
+            unconstrained minimiser ``z = −H⁻¹ q`` and keep it when it satisfies every
+            constraint row -- then it *is* the QP's optimum (strictly convex cost, zero
+            slacks), reported with status ``"solved (unconstrained)"``, zero iterations
+            and zero solve time.  Otherwise OSQP runs as usual, warm-started as always.
+            Off by default; worth it where constraints are rarely active.
         warm_start: ``"shift"`` (default): start OSQP from the previous primal/dual
             solution shifted by one stage; ``"previous"``: from the previous
             solution as is; ``"none"``: let OSQP start from its last iterate.
@@ -756,6 +763,7 @@ class LinearMPC:
         terminal: str = "state",
         osqp_settings: Mapping[str, Any] | None = None,
         fast_osqp: bool = True,
+        unconstrained_first: bool = False,
         warm_start: str = "shift",
         rescue: bool = True,
         form: str = "auto",
@@ -837,6 +845,7 @@ class LinearMPC:
             shape=(self._nA, self._nv),
         )
         self._backend = _Backend(P0, self._q_init(), A0, self._l, self._u, settings, fast_osqp)
+        self._unc_first = bool(unconstrained_first) and not self._sparse
         self.reset()
 
     @staticmethod
@@ -1200,6 +1209,7 @@ class LinearMPC:
         constraint rows onto ``z``) are built for both forms: they give
         :meth:`gain_unconstrained`, the exact refinement and the fallback prediction.
         """
+        self._unc = None  # the unconstrained shortcut's data follow the matrices
         n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
         A, B, C = self._A, self._B, self._C
         nt = self._ntheta
@@ -1801,6 +1811,16 @@ class LinearMPC:
         np.subtract(self._Lb_off, c, out=self._l_off)  # l = lower bounds - offsets
         np.subtract(self._Ub_off, c, out=self._u_off)
 
+        # unconstrained optimum when it is feasible (exact; see unconstrained_first) ---
+        if self._unc_first:
+            hit = self._unconstrained(v[self._sl_q])
+            if hit is not None:
+                x, y, obj_val = hit
+                status_val, status, iters, solve_time = _SOLVED, _UNCONSTRAINED, 0, 0.0
+                return self._finish(
+                    t_start, x, y, v, th, upl, up, status, status_val, iters, solve_time, obj_val
+                )
+
         # OSQP -----------------------------------------------------------------------
         be = self._backend
         raw = be.raw
@@ -1839,7 +1859,26 @@ class LinearMPC:
             return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
         if status_val != _SOLVED and status_val != _SOLVED_INACCURATE:
             return self._fallback(t_start, status, status_val, up, iters, solve_time)
+        return self._finish(
+            t_start, x, y, v, th, upl, up, status, status_val, iters, solve_time, obj_val
+        )
 
+    def _finish(
+        self,
+        t_start: float,
+        x: np.ndarray,
+        y: np.ndarray,
+        v: np.ndarray,
+        th: np.ndarray,
+        upl: list[float],
+        up: np.ndarray,
+        status: str,
+        status_val: int,
+        iters: int,
+        solve_time: float,
+        obj_val: float,
+    ) -> MPCSolution:
+        """Plan, safe first move, cost and warm start from a solution ``(x, y)``."""
         # result ---------------------------------------------------------------------
         if self._sparse:  # states and (absolute) inputs are variables
             U = x[self._oz : self._oe].reshape(self.Nc, self.m)
@@ -1901,6 +1940,42 @@ class LinearMPC:
             cost,
             _Predictions(self, x, th),
         )
+
+    def _unconstrained(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """``(x, y, objective)`` of the unconstrained minimiser if it is feasible, else None.
+
+        Condensed QP ``min ½ wᵀPw + qᵀw``, ``w = [z; ε]``: ``z = −H_zz⁻¹ q_z`` with zero
+        slacks.  If ``l ≤ A w ≤ u`` holds row by row, no constraint is active and ``w`` is
+        the unique optimum (zero duals; at ε = 0 the slack rows' multipliers are the
+        penalties themselves).  The inverse is formed once per matrix update and only
+        used when it inverts ``H_zz`` to 1e-9.
+        """
+        unc = self._unc
+        if unc is None:
+            nz = self._nz
+            Pu = self._P_dense[:nz, :nz]
+            H = Pu + Pu.T - np.diag(np.diag(Pu))
+            try:
+                Hinv = np.linalg.inv(H)
+                ok = np.abs(H @ Hinv - np.eye(nz)).max() < 1e-9
+            except np.linalg.LinAlgError:
+                ok = False
+            unc = self._unc = (
+                (np.ascontiguousarray(-Hinv), np.ascontiguousarray(self._A_dense[:, :nz]))
+                if ok
+                else False
+            )
+        if unc is False:
+            return None
+        mHinv, Az = unc
+        qz = q[: self._nz]
+        z = np.dot(mHinv, qz)
+        g = np.dot(Az, z)
+        if not ((g >= self._l).all() and (g <= self._u).all()):
+            return None
+        x = np.zeros(self._nv)
+        x[: self._nz] = z
+        return x, np.zeros(self._nA), 0.5 * float(np.dot(qz, z))
 
     def _predictions(self, x: np.ndarray, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``th``)."""
