@@ -691,8 +691,10 @@ class DMCController(Controller):
         self._seg_hint = 0
         # QP data buffers (shared with optimise())
         r = np.zeros((P, 2))
-        y_min = np.column_stack([np.full(P, -np.inf), np.zeros(P)])
-        y_max = np.column_stack([np.full(P, np.inf), np.zeros(P)])
+        # bounds of the input-level output only (the tracked output has none): the
+        # core's narrow per-call form
+        y_min = np.zeros((P, 1))
+        y_max = np.zeros((P, 1))
         self._opt_bufs = (r, y_min, y_max, np.zeros(P))
         self._link_views()
         # comfort jerk bound on the command [N per step]
@@ -746,7 +748,7 @@ class DMCController(Controller):
         self._yN_views = (yN0[: self.P], yN0[:-1], yN1[1:])
         self._dU_head = self._dU_shift[:-1]
         r, y_min, y_max, _ = self._opt_bufs
-        self._qp_cols = (r[:, 0], y_min[:, 1], y_max[:, 1])
+        self._qp_cols = (r[:, 0], y_min[:, 0], y_max[:, 0])
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         # copies (pickle, deepcopy) turn views into arrays of their own: link them again
@@ -1135,14 +1137,14 @@ class DMCController(Controller):
         bufs = self.__dict__.get("_opt_bufs")
         if bufs is None or bufs[0].shape[0] != P:
             r = np.zeros((P, 2))
-            y_min = np.column_stack([np.full(P, -np.inf), np.zeros(P)])
-            y_max = np.column_stack([np.full(P, np.inf), np.zeros(P)])
+            y_min = np.zeros((P, 1))
+            y_max = np.zeros((P, 1))
             bufs = self._opt_bufs = (r, y_min, y_max, np.zeros(P))
         r, y_min, y_max, x0 = bufs
         np.subtract(w, y_free, out=r[:, 0])
         r[:, 0] += u_prev * self.a[:P]
-        y_min[:, 1] = u_lo
-        y_max[:, 1] = u_hi
+        y_min[:, 0] = u_lo
+        y_max[:, 0] = u_hi
         return self.mpc.solve(x0, np.array([u_prev]), r, y_min=y_min, y_max=y_max)
 
     # -------------------------------------------------------------- control

@@ -1701,7 +1701,9 @@ class LinearMPC:
             x_ref_N: terminal state reference (state terminal weight only); default
                 ``pinv(C) @ y_ref[-1]`` (exactly ``y_ref[-1]`` when ``C = I``).
             y_min, y_max, h_y, h_x: per-stage bounds ``(Np, .)`` (or one row, held)
-                replacing the construction-time values for this call only.
+                replacing the construction-time values for this call only; where some
+                rows were unconstrained at construction, ``(Np, k)`` with only the ``k``
+                constrained ones is accepted too (the cheapest form).
 
         Never raises for non-finite data or solver failures: the result then has
         ``fallback=True`` and a safe ``u0``.  Wrong shapes raise ``ValueError``.
@@ -2043,6 +2045,22 @@ class LinearMPC:
                 continue
             g, dropped, cols, lb, ub_pos, hard = self._bounds_entry(name)
             arr = val if type(val) is np.ndarray else np.asarray(val, dtype=float)
+            if g is not None and arr.shape == g.lb_pos.shape and dropped is not None:
+                # only the rows constrained at construction, (Np, kept): nothing to drop;
+                # min/max find NaN (they propagate it) and whether clipping is needed
+                lo_v, hi_v = arr.min(), arr.max()
+                if lo_v != lo_v or hi_v != hi_v:
+                    return False
+                vals = arr
+                if lo_v < -_BIG or hi_v > _BIG:
+                    vals = np.minimum(np.maximum(arr, -_BIG), _BIG)
+                if side == 0:
+                    pos, ok = lb
+                    Lb[pos] = vals if ok is None else vals[ok]
+                else:
+                    Ub[ub_pos] = vals
+                check = check or hard
+                continue
             if g is not None:
                 dim = g.dim_full
             elif name == "y":
