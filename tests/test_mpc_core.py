@@ -681,3 +681,32 @@ def test_rescue_recovers_an_exact_solution(form):
     assert not sol.fallback and sol.status == "solved (polished)"  # ... but not for the rescue
     np.testing.assert_allclose(sol.U, ref["U"], atol=1e-8)
     assert sol.cost == pytest.approx(ref["cost"], rel=1e-9)
+
+
+def test_per_call_bounds_of_only_the_constrained_rows():
+    """(Np, k) per-call bounds for the k rows constrained at construction equal the
+    full-width form with infinities in the others; NaN there still falls back."""
+    A = np.array([[1.0, 0.1], [0.0, 1.0]])
+    B = np.array([[0.005], [0.1]])
+    C = np.eye(2)
+    kw = dict(
+        Np=8,
+        Q=np.diag([1.0, 0.1]),
+        R=np.array([[0.01]]),
+        u_min=[-2.0],
+        u_max=[2.0],
+        y_min=[-np.inf, -1.0],
+        y_max=[np.inf, 0.4],
+        soft_penalty=50.0,
+    )
+    x0, up, ref = np.array([0.0, 0.3]), np.array([0.0]), np.tile([2.0, 0.0], (8, 1))
+    hi = np.linspace(0.2, 0.5, 8)
+    full = LinearMPC(A, B, C, **kw).solve(
+        x0, up, ref, y_max=np.column_stack([np.full(8, np.inf), hi])
+    )
+    narrow = LinearMPC(A, B, C, **kw).solve(x0, up, ref, y_max=hi[:, None])
+    np.testing.assert_array_equal(full.U, narrow.U)
+    assert full.Y[:, 1].max() <= 0.5 + 1e-6
+    bad = hi[:, None].copy()
+    bad[3, 0] = np.nan
+    assert LinearMPC(A, B, C, **kw).solve(x0, up, ref, y_max=bad).fallback
