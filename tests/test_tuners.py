@@ -499,11 +499,14 @@ def test_cli_tune_show_and_outputs(tmp_path, capsys):
             "--no-progress",
             "--out",
             str(tmp_path / "out"),
+            "--holdout-seeds",
+            "7",
         ]
     )
     assert args.func(args) == 0
     out = capsys.readouterr().out
     assert "Pareto set" in out and "Selected" in out and "Defaults" in out
+    assert "Held-out seeds [7]" in out  # the main job's comparison (make demo)
     assert load_result("cli", db).evaluations.filter(like="g:").shape[1] == 2
     for suffix in (".csv", ".parquet", "_pareto.png", "_parallel.png", "_hypervolume.png"):
         assert (tmp_path / "out" / f"cli{suffix}").exists(), suffix

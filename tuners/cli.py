@@ -202,7 +202,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     )
     print(show(res.study_name, args.storage))
     if args.holdout_seeds:
-        table = res.compare_onparse_seeds(parse_seeds(args.holdout_seeds))
+        table = res.compare_on_seeds(parse_seeds(args.holdout_seeds))
         print(f"Held-out seeds {parse_seeds(args.holdout_seeds)}:")
         print(table.to_string(index=False))
     if args.out:
