@@ -228,7 +228,6 @@ where e_c is not small. ``reference_form="error"`` gives E_v 0.0175 m/s, ITAE 77
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from collections.abc import Mapping
 from typing import Any
 
@@ -391,45 +390,6 @@ def response_time(e: float, edot: float, e_tol: float, edot_tol: float, big: flo
     if e * edot < 0.0:
         return min(big, abs(e) / abs(edot))
     return big
-
-
-def _profile_speeds(
-    ts: list[float], tl: list[float], vl: list[float], al: list[float]
-) -> list[float]:
-    """``SpeedProfile.v_at_t(ts)`` on the profile's node lists (t, v, a), per point."""
-    last = len(tl) - 2
-    out = []
-    for x in ts:
-        i = bisect_right(tl, x) - 1
-        i = 0 if i < 0 else (last if i > last else i)
-        ti = tl[i]
-        tau = x - ti
-        if tau < 0.0:
-            tau = 0.0
-        span = tl[i + 1] - ti
-        if span < tau:
-            tau = span
-        v = vl[i] + al[i] * tau
-        out.append(v if v > 0.0 else 0.0)
-    return out
-
-
-def _profile_point(
-    t: float, lists: tuple[list[float], ...], i: int | None = None
-) -> tuple[float, float, int]:
-    """(``v_at_t(t)``, ``s_at_t(t)``, segment) of a SpeedProfile at one time, on its node
-    lists (t, v, a, s); ``i``: the segment of t (``SpeedProfile._seg``) if known."""
-    tl, vl, al, sl = lists
-    if i is None:
-        last = len(tl) - 2
-        i = bisect_right(tl, t) - 1
-        i = 0 if i < 0 else (last if i > last else i)
-    ti = tl[i]
-    tau = min(max(t - ti, 0.0), tl[i + 1] - ti)
-    vi, ai = vl[i], al[i]
-    v = max(vi + ai * tau, 0.0)
-    s = min(sl[i] + vi * tau + 0.5 * ai * tau * tau, sl[i + 1])
-    return v, s, i
 
 
 # ------------------------------------------------------------------ controller
@@ -688,7 +648,6 @@ class DMCController(Controller):
         self._yN0_buf, self._yN1_buf = np.empty(N), np.empty(N)
         self._dU_shift = np.zeros(self.L)  # [ΔU*(k−1)_{2…L}, 0]
         self._w_cache: dict[float, tuple[list[float], list[float]]] = {}
-        self._seg_hint = 0
         # QP data buffers (shared with optimise())
         r = np.zeros((P, 2))
         # bounds of the input-level output only (the tracked output has none): the
@@ -738,9 +697,6 @@ class DMCController(Controller):
                 self._fast_env,
                 self._fast_lim,
             )
-        if self._fast_ref is not None:  # per segment i: t_{i+1}, and (t_i, v_i, a_i)
-            tl, vl, al, _ = self._fast_ref
-            self._fast_segs = (tl[1:], list(zip(tl[:-1], vl[:-1], al[:-1], strict=True)))
 
     def _link_views(self) -> None:
         """Fixed views into the per-run buffers that compute() writes through."""
@@ -756,34 +712,18 @@ class DMCController(Controller):
         if "_yN_views" in state:
             self._link_views()
 
-    def _check_fast_preview(self, ctx: ControlContext) -> tuple[list[float], ...] | None:
-        """Node lists (t, v, a, s) of a time-indexed SpeedProfile if the list look-up is exact.
+    def _check_fast_preview(self, ctx: ControlContext) -> SpeedProfile | None:
+        """The reference's SpeedProfile when it is time-indexed (the float fast path).
 
-        Compared with ``v_at_t`` on arrays (the preview) and ``v_at_t``/``s_at_t`` on
-        scalars (the current v_ref and s_ref) at a sample of nodes, their segment
-        midpoints and a uniform grid over and beyond the profile's time span.
+        The fast path reads it through its own scalar methods (``v_at_t``/``s_at_t`` on a
+        float, :meth:`SpeedProfile.sample_sv` for the preview), which equal its array
+        methods bit for bit.
         """
         ref = ctx.reference
         prof = getattr(ref, "profile", None)
         if getattr(ref, "mode", None) != "time" or not isinstance(prof, SpeedProfile):
             return None
-        t_nodes = prof.t_s
-        lists = (t_nodes.tolist(), prof.v_mps.tolist(), prof.a_mps2.tolist(), prof.s_m.tolist())
-        tl = lists[0]
-        span = tl[-1] - tl[0]
-        k = np.unique(np.linspace(0, len(tl) - 2, 40).astype(int))  # a sample of segments
-        probe = np.concatenate([
-            t_nodes[k], 0.5 * (t_nodes[k] + t_nodes[k + 1]), t_nodes[-1:],
-            tl[0] + span * np.linspace(-0.05, 1.05, 45), [tl[0] - 1.0, tl[-1] + 1.0],
-        ]).tolist()
-        expect = np.asarray(prof.v_at_t(np.asarray(probe)), dtype=float).tolist()
-        if _profile_speeds(probe, *lists[:3]) != expect:
-            return None
-        for t in probe:
-            v0, s0, _ = _profile_point(t, lists)
-            if v0 != float(prof.v_at_t(t)) or s0 != float(prof.s_at_t(t)):
-                return None
-        return lists
+        return prof
 
     def _check_fast_envelope(self, tr: Any) -> tuple[float | None, ...] | None:
         """Constants of :meth:`_envelope_a` if it reproduces ``tr.envelope_N`` exactly."""
@@ -914,98 +854,40 @@ class DMCController(Controller):
             lo = MD
         return -lo, hi
 
-    def _reference_now(self, t0: float, s_m: float) -> tuple[float, float, float, int]:
-        """(v_ref, y_r(k), catch-up c, segment of t0) of :meth:`reference_preview` (fast).
-
-        ``SpeedProfile.v_at_t``/``s_at_t`` of the scalar t0 on the node lists; the segment
-        search walks on from the previous step's segment while the time advances.
-        """
-        lists = self._fast_ref
-        tl = lists[0]
-        last = len(tl) - 2
-        i = self._seg_hint
-        if tl[i] <= t0:
-            while i < last and tl[i + 1] <= t0:
-                i += 1
-        else:
-            i = bisect_right(tl, t0) - 1
-            i = 0 if i < 0 else (last if i > last else i)
-        self._seg_hint = i
-        ti = tl[i]  # _profile_point(t0, lists, i)
-        tau = min(max(t0 - ti, 0.0), tl[i + 1] - ti)
-        _, vl, al, sl = lists
-        vi, ai = vl[i], al[i]
-        v0 = max(vi + ai * tau, 0.0)
+    def _reference_now(self, t0: float, s_m: float) -> tuple[float, float, float]:
+        """(v_ref, y_r(k), catch-up c) of :meth:`reference_preview` (fast path)."""
+        prof = self._fast_ref
+        v0 = prof.v_at_t(t0)
         y0 = v0
         c = 0.0
         if self.lambda_x > 0.0:  # position catch-up
-            s_ref = min(sl[i] + vi * tau + 0.5 * ai * tau * tau, sl[i + 1])
-            c = self.lambda_x * (s_ref - s_m)
+            c = self.lambda_x * (prof.s_at_t(t0) - s_m)
             c = min(self.catchup_max, max(-self.catchup_max, c))
             y0 = v0 + c * min(1.0, v0 / self.catchup_fade)
         if self.stop_hold > 0.0 and self.ctx.s_stop_m is not None and t0 >= self._t_profile_end:
             y0 = -self.stop_hold
-        return v0, y0, c, i
+        return v0, y0, c
 
     def _preview_memberships(
-        self, t0: float, c: float, i: int, y_pred: list[float]
+        self, t0: float, c: float, y_pred: list[float]
     ) -> tuple[list[float], list[float]]:
         """(y_r(k+1 … k+P), μ_y terms) for a time-indexed SpeedProfile (fast path).
 
         The preview of :meth:`reference_preview` (profile speed at t0 + iΔt, plus the
         faded catch-up c, then the stop hold) and the trapezoid memberships of the
-        predicted errors ``ŷ − y_r`` of :meth:`satisfaction`, in one pass.
+        predicted errors ``ŷ − y_r`` of :meth:`satisfaction`.
         """
-        tl, vl, al, _ = self._fast_ref
-        dtk = self._dtk
+        _, v_prof = self._fast_ref.sample_sv(t0, self.ctx.dt_s, self.P)
         lam = self.lambda_x > 0.0
         fade = self.catchup_fade
-        ya, yb, yc, yd = self._y_trap
-        dc = yd - yc
-        y_r: list[float] = []
-        mus: list[float] = []
-        if self._y_sym and tl[0] <= t0 and t0 + dtk[-1] < tl[-1]:
-            # inside the profile (before its end, hence before the stop hold): the
-            # segment and τ clamps of SpeedProfile.v_at_t are inactive; the preview
-            # times increase, so each segment search walks on from the last one
-            t_next, segs = self._fast_segs
-            for d, yp in zip(dtk, y_pred, strict=True):
-                x = t0 + d
-                while t_next[i] <= x:
-                    i += 1
-                ti, vi, ai = segs[i]
-                v = vi + ai * (x - ti)
-                if v < 0.0:
-                    v = 0.0
-                if lam:
-                    q = v / fade
-                    v = v + c * (q if q < 1.0 else 1.0)
-                y_r.append(v)
-                ax = abs(yp - v)
-                mus.append(1.0 if ax <= yc else (0.0 if ax >= yd else (yd - ax) / dc))
-            return y_r, mus
-        last = len(tl) - 2
-        t_end = self._t_profile_end
         hold = self.stop_hold > 0.0 and self.ctx.s_stop_m is not None
-        i = 0
-        for d in dtk:
-            x = t0 + d
-            i = bisect_right(tl, x, i) - 1
-            i = 0 if i < 0 else (last if i > last else i)
-            ti = tl[i]
-            tau = x - ti
-            if tau < 0.0:
-                tau = 0.0
-            span = tl[i + 1] - ti
-            if span < tau:
-                tau = span
-            v = vl[i] + al[i] * tau
-            if v < 0.0:
-                v = 0.0
+        t_end = self._t_profile_end
+        y_r: list[float] = []
+        for d, v in zip(self._dtk, v_prof, strict=True):
             if lam:
                 q = v / fade
                 v = v + c * (q if q < 1.0 else 1.0)
-            if hold and x >= t_end:
+            if hold and t0 + d >= t_end:
                 # the profile has ended at the stop: aim a little below zero (see
                 # reference_preview)
                 v = -self.stop_hold
@@ -1163,7 +1045,7 @@ class DMCController(Controller):
         y_r: list[float] | None = None
         if self._fast_ref is not None and type(t0) is float and t0 - t0 == 0.0:
             # reference_preview() in two parts: now, and the preview (below, with μ_y)
-            v_ref, y0_ref, c_catch, seg = self._reference_now(t0, s_m)
+            v_ref, y0_ref, c_catch = self._reference_now(t0, s_m)
         else:
             v_ref, y0_ref, y_r_arr = self.reference_preview(obs)
             y_r = np.asarray(y_r_arr, dtype=float).tolist()
@@ -1226,7 +1108,7 @@ class DMCController(Controller):
         mu_t = 1.0 if t_r == 0.0 else trapmf_scalar(t_r, *self._t_trap)
         # μ_y: mean trapezoid membership of the predicted errors ŷ − y_r
         if y_r is None:
-            y_r, mus = self._preview_memberships(t0, c_catch, seg, y_pred)
+            y_r, mus = self._preview_memberships(t0, c_catch, y_pred)
         else:
             mus = self._memberships(y_pred, y_r)
         n1 = mus.count(1.0)
