@@ -2047,52 +2047,46 @@ class LinearMPC:
             arr = val if type(val) is np.ndarray else np.asarray(val, dtype=float)
             if g is not None and arr.shape == g.lb_pos.shape and dropped is not None:
                 # only the rows constrained at construction, (Np, kept): nothing to drop;
-                # min/max find NaN (they propagate it) and whether clipping is needed
-                lo_v, hi_v = arr.min(), arr.max()
+                # min/max propagate NaN
+                vals = arr
+                lo_v, hi_v = vals.min(), vals.max()
                 if lo_v != lo_v or hi_v != hi_v:
                     return False
-                vals = arr
-                if lo_v < -_BIG or hi_v > _BIG:
-                    vals = np.minimum(np.maximum(arr, -_BIG), _BIG)
-                if side == 0:
-                    pos, ok = lb
-                    Lb[pos] = vals if ok is None else vals[ok]
-                else:
-                    Ub[ub_pos] = vals
-                check = check or hard
-                continue
-            if g is not None:
-                dim = g.dim_full
-            elif name == "y":
-                dim = self.p
             else:
-                dim = arr.shape[-1] if arr.ndim else 1
-            if arr.shape != (self.Np, dim):
-                try:
-                    arr = np.broadcast_to(arr, (self.Np, dim))
-                except ValueError:
+                if g is not None:
+                    dim = g.dim_full
+                elif name == "y":
+                    dim = self.p
+                else:
+                    dim = arr.shape[-1] if arr.ndim else 1
+                if arr.shape != (self.Np, dim):
+                    try:
+                        arr = np.broadcast_to(arr, (self.Np, dim))
+                    except ValueError:
+                        raise ValueError(
+                            f"solve(): {_bound_label(name, side)} must have shape "
+                            f"({self.Np}, {dim}) or ({dim},), got {arr.shape}"
+                        ) from None
+                total = arr.sum()
+                if total != total and np.isnan(arr).any():  # +inf plus -inf is NaN too
+                    return False
+                if g is None:
+                    if np.isfinite(arr).any():
+                        raise ValueError(
+                            f"solve(): {_bound_label(name, side)} given but no {name} "
+                            "constraint was set at construction"
+                        )
+                    continue
+                if dropped is not None and np.isfinite(arr[:, dropped]).any():
+                    rows = np.arange(dim)[dropped].tolist()
                     raise ValueError(
-                        f"solve(): {_bound_label(name, side)} must have shape "
-                        f"({self.Np}, {dim}) or ({dim},), got {arr.shape}"
-                    ) from None
-            total = arr.sum()
-            if total != total and np.isnan(arr).any():  # a sum of +inf and -inf is NaN too
-                return False
-            if g is None:
-                if np.isfinite(arr).any():
-                    raise ValueError(
-                        f"solve(): {_bound_label(name, side)} given but no {name} constraint "
-                        "was set at construction"
+                        f"solve(): {_bound_label(name, side)} has finite values in rows "
+                        f"{rows} that were unconstrained at construction"
                     )
-                continue
-            if dropped is not None and np.isfinite(arr[:, dropped]).any():
-                rows = np.arange(dim)[dropped].tolist()
-                raise ValueError(
-                    f"solve(): {_bound_label(name, side)} has finite values in rows "
-                    f"{rows} that were unconstrained at construction"
-                )
-            vals = arr if cols is None else arr[:, cols]
-            vals = np.minimum(np.maximum(vals, -_BIG), _BIG)
+                vals = arr if cols is None else arr[:, cols]
+                lo_v, hi_v = vals.min(), vals.max()
+            if lo_v < -_BIG or hi_v > _BIG:
+                vals = np.minimum(np.maximum(vals, -_BIG), _BIG)
             if side == 0:
                 pos, ok = lb
                 Lb[pos] = vals if ok is None else vals[ok]
