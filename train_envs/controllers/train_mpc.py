@@ -322,8 +322,7 @@ class PointMassMPC(_TrainMPCBase):
         self._ymax_buf = np.full((self.Np, 2), 1e6)
         if ctx.s_stop_m is not None:
             self._ymax_buf[:, 0] = ctx.s_stop_m
-        # constants of the per-stage affine term (see _affine)
-        self._steps = ctx.dt_s * np.arange(1, max(self.Np, self._l, 1) + 1)
+        # constants of the per-stage affine term (see _preview)
         self._ff_full = self.feedforward == "full"
         use_grad = self.feedforward in ("full", "gradient") and ctx.track is not None
         self._grad_tab = gradient_table(ctx.track) if use_grad else None
@@ -342,37 +341,14 @@ class PointMassMPC(_TrainMPCBase):
             self._w_hat += self.observer_gain * innov / float(self._Ed[1])
             self._w_hat = min(max(self._w_hat, -1.0), 1.0)
 
-    def _affine(self, s_r: np.ndarray, v_r: np.ndarray) -> np.ndarray:
-        """Per-stage affine acceleration w_i (see class docstring), incl. the estimate ŵ.
-
-        ``w = ŵ − (R(v_r) − R'(v_lin) v_r)/M' − M g θ(s_r)/(1000 M')`` with the Davis
-        constant term only where v_r > 0 (at standstill resistance cannot drive).
-        """
-        w = np.full_like(v_r, self._w_hat)
-        if self._ff_full:
-            tr = self.ctx.train
-            vr = np.maximum(v_r, 0.0)
-            slope = tr.davis_b_Ns_per_m + 2.0 * tr.davis_c_Ns2_per_m2 * self._v_lin
-            w -= (
-                tr.davis_a_N * (vr > 0)
-                + (tr.davis_b_Ns_per_m - slope + tr.davis_c_Ns2_per_m2 * vr) * vr
-            ) / self._mi
-        if self._grad_tab is not None:
-            w -= self._k_grad * self._grad_tab(s_r)
-        return w
-
-    def _reference(self, t: float, s: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Reference (s, v) for stages 1..n starting at time ``t`` / position ``s``."""
-        ref = self.ctx.reference
-        prof = ref.profile
-        t0 = float(prof.t_at_s(s)) if ref.mode == "distance" else t
-        return prof.sv_at_t(t0 + self._steps[:n])
-
     def _preview(self, t: float, s: float, n: int) -> tuple[list, list, list]:
-        """:meth:`_reference` and :meth:`_affine` of stages 1..n in plain floats.
+        """Reference ``(s_r, v_r)`` and affine acceleration ``w`` of stages 1..n (floats).
 
-        The per-step fast path: the same arithmetic point by point (equal results), no
-        numpy calls on the few-element arrays of a short horizon.
+        Stages start at time ``t`` (time-indexed reference) or at the profile time of
+        position ``s`` (distance-indexed).  ``w = ŵ − (R(v_r) − R'(v_lin) v_r)/M' −
+        M g θ(s_r)/(1000 M')`` with the Davis constant term only where v_r > 0 (at
+        standstill resistance cannot drive); plain floats, no numpy calls on the
+        few-element arrays of a short horizon.
         """
         t0 = self._prof.t_at_s(s) if self._distance_mode else t
         s_r, v_r = self._prof.sample_sv(t0, self._dt, n)
