@@ -625,16 +625,10 @@ class DMCController(Controller):
         same order, so that the result is identical bit for bit (checked by replaying
         recorded runs against the previous implementation). Vector operations whose
         rounding depends on NumPy's kernels (the dynamic-matrix product, the pairwise
-        sum of the mean) stay in NumPy. Three look-ups of other modules are restated on
-        floats and used only if they reproduce those functions exactly on a grid of test
-        points (else the functions are called as before):
-
-        * ``v_ref``/``s_ref`` now and the preview ``v_ref(t + iΔt)`` of a time-indexed
-          :class:`SpeedProfile` (``v_at_t``/``s_at_t``);
-        * the force envelope ``[−B(v), F(v)]`` of ``TrainParams.envelope_N`` at the
-          predicted speeds (:meth:`_envelope_a`);
-        * ``TrainParams.max_brake_N``/``max_traction_N`` at the measured speed, for the
-          command clip of a single whole-train input (:meth:`_limits`).
+        sum of the mean) stay in NumPy. Look-ups go through the owners' own methods: the
+        time-indexed :class:`SpeedProfile`'s scalar ``v_at_t``/``s_at_t`` and
+        :meth:`SpeedProfile.sample_sv` (equal to its array methods bit for bit), and
+        ``TrainParams.envelope_N`` for the force bounds.
         """
         dt = ctx.dt_s
         P, N = self.P, self.N
@@ -673,30 +667,7 @@ class DMCController(Controller):
         # μ_y(x) = clip((d − |x|)/(d − c), 0, 1) exactly when a = −d, b = −c, b − a = d − c
         # (the rising edge is the mirror image of the falling one) and b > a
         self._y_sym = ya == -yd and yb == -yc and yb - ya == yd - yc and yb > ya
-        # the exactness checks of the restated look-ups run once per (profile, train)
-        # object pair (an env resets with the same objects every episode)
-        prof = getattr(ctx.reference, "profile", None)
-        mode = getattr(ctx.reference, "mode", None)
-        checked = getattr(self, "_fast_checked", None)
-        if (
-            checked is not None
-            and checked[0] is prof
-            and checked[1] is tr
-            and checked[2] == (mode, dt, P)
-        ):
-            self._fast_ref, self._fast_env, self._fast_lim = checked[3:]
-        else:
-            self._fast_ref = self._check_fast_preview(ctx)
-            self._fast_env = self._check_fast_envelope(tr)
-            self._fast_lim = self._check_fast_limits(tr)
-            self._fast_checked = (
-                prof,
-                tr,
-                (mode, dt, P),
-                self._fast_ref,
-                self._fast_env,
-                self._fast_lim,
-            )
+        self._fast_ref = self._check_fast_preview(ctx)
 
     def _link_views(self) -> None:
         """Fixed views into the per-run buffers that compute() writes through."""
@@ -724,135 +695,6 @@ class DMCController(Controller):
         if getattr(ref, "mode", None) != "time" or not isinstance(prof, SpeedProfile):
             return None
         return prof
-
-    def _check_fast_envelope(self, tr: Any) -> tuple[float | None, ...] | None:
-        """Constants of :meth:`_envelope_a` if it reproduces ``tr.envelope_N`` exactly."""
-        try:
-            Mi = tr.inertial_mass_kg
-            fin = math.isfinite
-            F, da = tr.max_traction_force_N, tr.davis_a_N
-            db, dc = tr.davis_b_Ns_per_m, tr.davis_c_Ns2_per_m2
-            MA = Mi * tr.max_accel_mps2 if fin(tr.max_accel_mps2) else None
-            # in motion the acceleration limit M(1+ρ) a_max + R(v) ≥ M(1+ρ) a_max + a
-            # (rounding is monotone, a, b, c ≥ 0) cannot bind if that is ≥ F already
-            MA_moving = None if MA is None or (min(da, db, dc) >= 0 and MA + da >= F) else MA
-            consts = (
-                F,
-                tr.max_traction_power_W if fin(tr.max_traction_power_W) else None,
-                MA,
-                MA_moving,
-                da,
-                db,
-                dc,
-                tr.max_brake_force_N,
-                tr.max_brake_power_W if fin(tr.max_brake_power_W) else None,
-                tr.max_friction_brake_force_N,
-                Mi * tr.max_decel_mps2 if fin(tr.max_decel_mps2) else None,
-            )
-            vmax = tr.max_speed_mps if fin(tr.max_speed_mps) else 100.0
-            v = np.concatenate([[0.0, 1e-9, 1e-3], np.linspace(0.0, 1.5 * vmax, 301)[1:]])
-            lo, hi = tr.envelope_N(v)
-            lo_f, hi_f = self._envelope_a(v.tolist(), 0.0, 1.0, consts)
-            ok = lo_f == np.asarray(lo, float).tolist() and hi_f == np.asarray(hi, float).tolist()
-        except (AttributeError, TypeError, ValueError):
-            return None
-        return consts if ok else None
-
-    @staticmethod
-    def _envelope_a(
-        v: list[float], ff: float, M: float, consts: tuple[float | None, ...]
-    ) -> tuple[list[float], list[float]]:
-        """``((lo − ff)/M, (hi − ff)/M)`` of ``TrainParams.envelope_N(max(v, 0))`` as lists.
-
-        The vectorised envelope restated per speed (same operations, same order):
-        ``hi = min(F_t, P_t/v, M(1+ρ) a_max + R(v))``, ``R(0) = 0``, the power term only
-        for v > 0; ``lo = −min(min(F_b, P_b/v) + F_fric, M(1+ρ) d_max)``. A NaN speed
-        gives the standstill values, as in ``envelope_N``.
-        """
-        F, Pt, MA, MA_mov, da, db, dc, Fb, Pb, Ffr, MD = consts
-        hi0 = F if MA is None or not MA + 0.0 < F else MA + 0.0  # standstill
-        lo_out: list[float] = []
-        hi_out: list[float] = []
-        for x in v:
-            if x > 0.0:
-                hi = F
-                if Pt is not None:
-                    q = Pt / x
-                    if q < hi:
-                        hi = q
-                if MA_mov is not None:
-                    q = MA_mov + (da + db * x + dc * (x * x))
-                    if q < hi:
-                        hi = q
-                lo = Fb
-                if Pb is not None:
-                    q = Pb / x
-                    if q < lo:
-                        lo = q
-            else:  # standstill: no power limit, no resistance term
-                hi = hi0
-                lo = Fb
-            lo = lo + Ffr
-            if MD is not None and MD < lo:
-                lo = MD
-            lo_out.append((-lo - ff) / M)
-            hi_out.append((hi - ff) / M)
-        return lo_out, hi_out
-
-    def _check_fast_limits(self, tr: Any) -> tuple[float | None, ...] | None:
-        """Constants of :meth:`_limits` if it reproduces ``max_brake_N``/``max_traction_N``."""
-        try:
-            Mi = tr.inertial_mass_kg
-            fin = math.isfinite
-            consts = (
-                tr.max_traction_force_N,
-                tr.max_traction_power_W if fin(tr.max_traction_power_W) else None,
-                Mi * tr.max_accel_mps2 if fin(tr.max_accel_mps2) else None,
-                tr.davis_a_N,
-                tr.davis_b_Ns_per_m,
-                tr.davis_c_Ns2_per_m2,
-                tr.max_brake_force_N,
-                tr.max_brake_power_W if fin(tr.max_brake_power_W) else None,
-                tr.max_friction_brake_force_N,
-                Mi * tr.max_decel_mps2 if fin(tr.max_decel_mps2) else None,
-            )
-            vmax = tr.max_speed_mps if fin(tr.max_speed_mps) else 100.0
-            grid = np.linspace(-0.5 * vmax, 1.5 * vmax, 401).tolist() + [0.0, -0.0, 1e-9, -1e-9]
-            for v in grid:
-                lo, hi = self._limits(v, consts)
-                if lo != -tr.max_brake_N(v) or hi != tr.max_traction_N(v):
-                    return None
-        except (AttributeError, TypeError, ValueError):
-            return None
-        return consts
-
-    @staticmethod
-    def _limits(v: float, consts: tuple[float | None, ...]) -> tuple[float, float]:
-        """``(−TrainParams.max_brake_N(v), TrainParams.max_traction_N(v))`` on floats."""
-        F, Pt, MA, da, db, dc, Fb, Pb, Ffr, MD = consts
-        av = abs(v)
-        hi = F
-        lo = Fb
-        if av > 0:
-            if Pt is not None:
-                q = Pt / av
-                if q < hi:
-                    hi = q
-            if Pb is not None:
-                q = Pb / av
-                if q < lo:
-                    lo = q
-            res = da + db * av + dc * av * av  # TrainParams.resistance_N(|v|)
-        else:
-            res = 0.0
-        if MA is not None:
-            q = MA + res
-            if q < hi:
-                hi = q
-        lo += Ffr
-        if MD is not None and MD < lo:
-            lo = MD
-        return -lo, hi
 
     def _reference_now(self, t0: float, s_m: float) -> tuple[float, float, float]:
         """(v_ref, y_r(k), catch-up c) of :meth:`reference_preview` (fast path)."""
@@ -1143,15 +985,11 @@ class DMCController(Controller):
             r_col = [(r_i - a_i * d0 - p_i) + u_prev * s_i for a_i, _, r_i, p_i, s_i in rows]
         v_plan = [y]
         v_plan += y_pred[:-1]
-        if self._fast_env is not None:
-            u_lo, u_hi = self._envelope_a(v_plan, ff, M, self._fast_env)
-        else:
-            lo, hi = ctx.train.envelope_N(np.maximum(np.array(v_plan), 0.0))
-            u_lo, u_hi = ((lo - ff) / M).tolist(), ((hi - ff) / M).tolist()
+        lo, hi = ctx.train.envelope_N(np.maximum(np.array(v_plan), 0.0))
         col_r, col_lo, col_hi = self._qp_cols
         col_r[:] = r_col
-        col_lo[:] = u_lo
-        col_hi[:] = u_hi
+        np.divide(lo - ff, M, out=col_lo)
+        np.divide(hi - ff, M, out=col_hi)
         r, y_min, y_max, x0 = self._opt_bufs
         sol = self.mpc.solve(x0, np.array([u_prev]), r, y_min=y_min, y_max=y_max)
         u_a = float(sol.u0[0])
@@ -1165,10 +1003,7 @@ class DMCController(Controller):
             u = min(max(u, u_total_prev - du), u_total_prev + du)
         if self._single:
             # distribute() for one whole-train input, on floats: envelope, then rate window
-            if self._fast_lim is not None:
-                lo_y, hi_y = self._limits(y, self._fast_lim)
-            else:
-                lo_y, hi_y = envelope_N(ctx.train, y)
+            lo_y, hi_y = envelope_N(ctx.train, y)
             u = min(max(u, lo_y), hi_y)
             if self._du_step is not None:
                 u = min(max(u, u_total_prev - self._du_step), u_total_prev + self._du_step)
