@@ -592,6 +592,24 @@ class TrainPlant:
             g0, g1 = Gam
             q0, q1 = P1
             r0, r1 = P2
+
+        def nl(pos: float, vel: float, time: float) -> float:
+            """N(z, t): −(Davis + gradient + disturbances)/M' per unit mass (_nl_single)."""
+            av = vel if vel >= 0.0 else -vel
+            f = ca + cb * av + cc * av * av
+            f = f if vel > 0 else (-f if vel < 0 else 0.0)
+            if tab is not None:
+                j = bisect_right(xl, pos) - 1
+                f += mg * (y0l[j] + sl[j] * (pos - xl[j]))
+            elif grad is not None:
+                f += mg * float(grad(pos))
+            if dists:
+                wd = 0.0
+                for dist in dists:
+                    wd += dist.accel(time)
+                f += m0 * wd
+            return -f * minv
+
         t = self.t
         pl = self._p_last
         p_last = pl if type(pl) is float else float(pl[0])
@@ -619,21 +637,7 @@ class TrainPlant:
                     t += h
                     p_last = 0.0
                     continue
-            # n0 = N(z, t): Davis + gradient + disturbances (as _nl_single)
-            av = z1 if z1 >= 0.0 else -z1
-            f = ca + cb * av + cc * av * av
-            f = f if z1 > 0 else (-f if z1 < 0 else 0.0)
-            if tab is not None:
-                j = bisect_right(xl, z0) - 1
-                f += mg * (y0l[j] + sl[j] * (z0 - xl[j]))
-            elif grad is not None:
-                f += mg * float(grad(z0))
-            if dists:
-                wd = 0.0
-                for dist in dists:
-                    wd += dist.accel(t)
-                f += m0 * wd
-            n0 = -f * minv
+            n0 = nl(z0, z1, t)  # N(z, t)
             # a = Φ z + Γ w + h φ1 N(z)  (row by row, the operations of the matrix code)
             if order:
                 a0 = p00 * z0 + p01 * z1 + p02 * z2 + g0 * w + q0 * n0
@@ -642,21 +646,7 @@ class TrainPlant:
             else:
                 a0 = p00 * z0 + p01 * z1 + g0 * w + q0 * n0
                 a1 = p10 * z0 + p11 * z1 + g1 * w + q1 * n0
-            # n1 = N(a, t + h)
-            av = a1 if a1 >= 0.0 else -a1
-            f = ca + cb * av + cc * av * av
-            f = f if a1 > 0 else (-f if a1 < 0 else 0.0)
-            if tab is not None:
-                j = bisect_right(xl, a0) - 1
-                f += mg * (y0l[j] + sl[j] * (a0 - xl[j]))
-            elif grad is not None:
-                f += mg * float(grad(a0))
-            if dists:
-                wd = 0.0
-                for dist in dists:
-                    wd += dist.accel(t + h)
-                f += m0 * wd
-            dn = -f * minv - n0
+            dn = nl(a0, a1, t + h) - n0  # N(a, t + h) − N(z, t)
             # z_new = a + h φ2 (n1 − n0)
             s_new = a0 + r0 * dn
             v_new = a1 + r1 * dn
