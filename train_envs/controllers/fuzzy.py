@@ -268,14 +268,6 @@ class RuleBase2:
         self.names = names
         self._lo_e, self._hi_e = self.pe._lo, self.pe._hi
         self._lo_c, self._hi_c = self.pc._lo, self.pc._hi
-        #: constants of the inlined cell search of :meth:`outputs` (uniform partitions;
-        #: used only while ``pe``/``pc`` are still these objects)
-        self._uniform_cells = None
-        if self.pe._uniform and self.pc._uniform:
-            pe, pc = self.pe, self.pc
-            self._uniform_cells = (
-                pe, pc, pe._lo, pe._hi, pe._h, pe.n - 2, pc._lo, pc._hi, pc._h, pc.n - 2
-            )
 
     @property
     def output_range(self) -> tuple[float, float]:
@@ -299,37 +291,8 @@ class RuleBase2:
             ec = _finite(self.names[1], ec)
         e *= self.scale_e
         ec *= self.scale_ec
-        fast = getattr(self, "_uniform_cells", None)
-        if fast is not None and fast[0] is self.pe and fast[1] is self.pc:
-            # TriangularPartition.locate of both inputs, inlined (uniform partitions)
-            _, _, lo, hi, h, n2, lo_c, hi_c, h_c, n2_c = fast
-            if e <= lo:
-                i, a = 0, 0.0
-            elif e >= hi:
-                i, a = n2, 1.0
-            else:
-                f = (e - lo) / h
-                i = int(f)
-                if i > n2:
-                    i = n2
-                a = f - i
-                if a > 1.0:
-                    a = 1.0
-            if ec <= lo_c:
-                j, b = 0, 0.0
-            elif ec >= hi_c:
-                j, b = n2_c, 1.0
-            else:
-                f = (ec - lo_c) / h_c
-                j = int(f)
-                if j > n2_c:
-                    j = n2_c
-                b = f - j
-                if b > 1.0:
-                    b = 1.0
-        else:
-            i, a = self.pe.locate(e)
-            j, b = self.pc.locate(ec)
+        i, a = self.pe.locate(e)
+        j, b = self.pc.locate(ec)
         j1 = j + 1
         if self.inference == "product":
             a1, b1 = 1.0 - a, 1.0 - b
