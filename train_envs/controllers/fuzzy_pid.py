@@ -57,8 +57,7 @@ Davis and 0.03 m/s² random resistance perturbations.
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -72,7 +71,6 @@ from train_envs.controllers._common import (
 )
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.fuzzy import NB, NM, NS, PB, PM, PS, UNIVERSE, ZO, RuleBase2
-from train_envs.lines.profiles import SpeedProfile
 
 # rows: e = NB … PB; columns: ec = NB … PB
 DKP_TABLE = np.array([
@@ -102,33 +100,6 @@ DKD_TABLE = np.array([
     [NS, NS, ZO, ZO, ZO, NS, NS],
     [NB, NB, NM, NM, NM, NB, NB],
 ])
-
-
-def interp_scalar(x: float, xp: Sequence[float], fp: Sequence[float]) -> float:
-    """``float(np.interp(x, xp, fp))`` for one Python float, on lists (same arithmetic).
-
-    NumPy's rules: ``fp[0]`` left of ``xp[0]``, ``fp[-1]`` from ``xp[-1]`` on, ``fp[j]``
-    exactly at a node, else ``slope (x − xp[j]) + fp[j]`` with the slope of the segment,
-    retried from the right end when that gives NaN.
-    """
-    if x != x:
-        return x
-    j = bisect_right(xp, x) - 1
-    if j < 0:
-        return fp[0]
-    if j >= len(xp) - 1:
-        return fp[-1]
-    x0 = xp[j]
-    if x0 == x:
-        return fp[j]
-    y0, y1 = fp[j], fp[j + 1]
-    slope = (y1 - y0) / (xp[j + 1] - x0)
-    y = slope * (x - x0) + y0
-    if y != y:
-        y = slope * (x - xp[j + 1]) + y1
-        if y != y and y0 == y1:
-            y = y0
-    return y
 
 
 class FuzzyPIDController(Controller):
@@ -183,9 +154,6 @@ class FuzzyPIDController(Controller):
         """Per-run constants of :meth:`compute` (its arithmetic is unchanged by them).
 
         * the de/dt filter gain ``Δt / (T_f + Δt)`` and the inertial mass;
-        * the reference look-up on Python lists (:func:`interp_scalar` for a_ref) when the
-          reference is a (frozen) :class:`SpeedProfile` and the list look-up reproduces
-          ``np.interp`` on a grid of test points — otherwise :func:`reference_at`;
         * one whole-train input (share 1): the command is clipped with Python floats,
           exactly as :func:`distribute` does it on arrays.
         """
@@ -196,23 +164,6 @@ class FuzzyPIDController(Controller):
         self._Mi = tr.inertial_mass_kg
         self._single = ctx.n_inputs == 1 and self._shares.shape == (1,) and self._shares[0] == 1.0
         self._du_step = ctx.du_max_Nps * ctx.dt_s if math.isfinite(ctx.du_max_Nps) else None
-        self._ref_lists: tuple[bool, list[float], list[float]] | None = None
-        ref = ctx.reference
-        prof = getattr(ref, "profile", None)
-        if isinstance(prof, SpeedProfile) and ref.mode in ("time", "distance"):
-            by_time = ref.mode == "time"
-            xp_arr = prof.t_s if by_time else prof.s_m
-            fp_arr = prof.a_mps2
-            xp, fp = xp_arr.tolist(), fp_arr.tolist()
-            span = xp[-1] - xp[0]
-            k = np.unique(np.linspace(0, len(xp) - 2, 40).astype(int))  # sample of segments
-            probe = np.concatenate([
-                xp_arr[k], 0.5 * (xp_arr[k] + xp_arr[k + 1]), xp_arr[-1:],
-                xp[0] + span * np.linspace(-0.05, 1.05, 45), [xp[-1] + 1.0, xp[0] - 1.0],
-            ])
-            expect = np.interp(probe, xp_arr, fp_arr).tolist()
-            if [interp_scalar(x, xp, fp) for x in probe.tolist()] == expect:
-                self._ref_lists = (by_time, xp, fp)
 
     def gains(self, e: float, ec: float) -> tuple[float, float, float]:
         """Scheduled (K_p, K_i, K_d) for error ``e`` [m/s] and error rate ``ec`` [m/s²]."""
@@ -225,17 +176,7 @@ class FuzzyPIDController(Controller):
         dt = ctx.dt_s
         tr = ctx.train
         v = obs.v_mps
-        rl = self._ref_lists
-        if rl is not None and type(obs.t_s) is float and type(obs.s_m) is float:
-            prof = ctx.reference.profile
-            if rl[0]:
-                v_ref = float(prof.v_at_t(obs.t_s))
-                a_ref = interp_scalar(obs.t_s, rl[1], rl[2])
-            else:
-                v_ref = float(prof.v_at_s(obs.s_m))
-                a_ref = interp_scalar(obs.s_m, rl[1], rl[2])
-        else:
-            v_ref, a_ref = reference_at(ctx, obs)
+        v_ref, a_ref = reference_at(ctx, obs)
         e = v_ref - v
         if self._e_prev is None:
             self._e_prev = e

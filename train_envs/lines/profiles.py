@@ -78,6 +78,7 @@ class SpeedProfile:
     label: str = ""
     t_s: np.ndarray = field(init=False)
     _a: np.ndarray = field(init=False)
+    _a_nodes: np.ndarray = field(init=False)
     _s: list[float] = field(init=False)
     _v: list[float] = field(init=False)
     _t: list[float] = field(init=False)
@@ -119,6 +120,9 @@ class SpeedProfile:
             arr = np.array(arr, dtype=float)
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
+        a_nodes = np.append(self._a, self._a[-1])
+        a_nodes.setflags(write=False)
+        object.__setattr__(self, "_a_nodes", a_nodes)
         object.__setattr__(self, "t0_s", t0)
         object.__setattr__(self, "_s", s.tolist())
         object.__setattr__(self, "_v", v.tolist())
@@ -146,8 +150,8 @@ class SpeedProfile:
     @property
     def a_mps2(self) -> np.ndarray:
         """Acceleration at each node [m/s²]: that of the segment starting there (the last
-        node repeats the last segment's value)."""
-        return np.append(self._a, self._a[-1])
+        node repeats the last segment's value; read-only, built once)."""
+        return self._a_nodes
 
     # ------------------------------------------------------------------ interpolation
     def _seg(self, x: np.ndarray, nodes: np.ndarray) -> np.ndarray:
