@@ -375,3 +375,20 @@ def test_pid_refactor_kept_behaviour(runs):
     m = runs["paper001_stopping", "pid"].metrics
     assert m["stop_error_m"] == pytest.approx(0.043736, abs=1e-5)
     assert isinstance(make_controller("pid"), PIDController)
+
+
+def test_afsmc_speed_surface_is_the_speed_error_and_has_no_position_feedback():
+    sc = get_scenario("paper000_disturbance_constant")
+    ctrl = make_controller("afsmc000")
+    assert ctrl.name == "afsmc000" and ctrl.surface == "speed"
+    loop = ClosedLoop(sc, ctrl)
+    loop.reset(seed=0)
+    while not loop.done:
+        info = loop.step()
+        assert info["sigma"] == info["error"]
+    # under a constant head wind the position error drifts without position feedback,
+    # while the library AFSMC (position surface) holds the stop
+    speed, pos = loop.result().metrics, simulate(sc, "afsmc", seed=0).metrics
+    assert speed["E_p_m"] > 10 * pos["E_p_m"]
+    with pytest.raises(ValueError, match="surface"):
+        AFSMCController(surface="position+speed")

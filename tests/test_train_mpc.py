@@ -136,3 +136,16 @@ def test_parameters_change_the_mpc_cheaply_between_steps():
         assert not info["fallback"]
     with pytest.raises(ValueError, match="q_v"):
         c.set_params(q_v=-1.0)
+
+
+def test_paper000_orderings_sempc_mpc_afsmc_on_all_three_scenarios():
+    """000 Tables 2 and 4: E_v and E_x ordered SEMPC ≤ MPC ≤ AFSMC in every scenario,
+    with 000's comparator reconstructed as ``afsmc000`` (speed sliding surface)."""
+    from train_envs.reproduce.paper000 import reproduce_paper000
+
+    df = reproduce_paper000().set_index(["scenario", "controller"])
+    for sc in ("single_section", "disturbance_constant", "disturbance_harmonic"):
+        for col in ("E_v_mps_ours", "E_x_m_ours"):
+            se, mp, af = (df.loc[(sc, c), col] for c in ("sempc", "mpc000", "afsmc000"))
+            assert se <= mp <= af, (sc, col, se, mp, af)
+        assert df.loc[(sc, "sempc"), "E_p_m_ours"] < min(0.1, df.loc[(sc, "mpc000"), "E_p_m_ours"])

@@ -29,6 +29,13 @@ def _mpc000(scenario: Any = None, **kw: Any) -> Controller:
     return MultiCarMPC(scenario, terminal=False, **kw)
 
 
+def _afsmc000(**kw: Any) -> Controller:
+    """Paper 000's AFSMC comparator as we reconstruct it: speed sliding surface σ = e_v."""
+    c = AFSMCController(surface="speed", **kw)
+    c.name = "afsmc000"
+    return c
+
+
 def _fuzzy_mpc(scenario: Any = None, **kw: Any) -> Controller:
     """Paper 003's fuzzy constrained predictive controller (imports cvxpy on first use)."""
     from train_envs.controllers.fuzzy_mpc import FuzzyMPCController
@@ -42,6 +49,7 @@ CONTROLLERS: dict[str, Callable[..., Controller]] = {
     "tracking": _tracking,
     "fuzzy_pid": FuzzyPIDController,
     "afsmc": AFSMCController,
+    "afsmc000": _afsmc000,
     "dmc": DMCController,
     "mpc": PointMassMPC,
     "sempc": MultiCarMPC,

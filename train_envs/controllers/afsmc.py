@@ -21,6 +21,15 @@ Errors ``e_v = v_ref − v``; sliding variable ``σ = ė_z + λ e_z`` on an erro
 * reference mode ``"distance"`` (v_ref(s), no meaningful s_ref(t)): ``e_z = ∫e_v dt``,
   so ``σ = e_v + λ ∫e_v dt`` — speed error only.
 
+``surface="speed"`` drops the position/integral part: ``σ = e_v``, the sliding surface
+of a relative-degree-one speed loop (v̇ driven directly by u), which is what speed-
+tracking sliding-mode train controllers use (e.g. Cao et al., IEEE TVT 68(7), 2019, paper
+000's ref. [16]). Such a controller has no position feedback, so its position error
+drifts with every unmodelled force. It is registered as ``"afsmc000"``, our
+reconstruction of paper 000's comparator (ref. [18], Guo et al., IET ITS 17(2), 2023,
+whose law 000 does not restate): 000's Tables 2 and 4 report E_x of 57–90 m and stopping
+errors of 25–74 m for it, which no controller with position feedback would show.
+
 Control law (whole-train force)::
 
     σ = e_v + sat_δ(λ e_z)                          (sat_δ: clip to ±δ, δ = catchup_max_mps)
@@ -101,8 +110,12 @@ class AFSMCController(Controller):
         theta_max_mps2: float = 0.5,
         sigma_span_mps: float = 1.0,
         catchup_max_mps: float = 0.2,
+        surface: str = "position",
         **params: float,
     ) -> None:
+        if surface not in ("position", "speed"):
+            raise ValueError(f"surface must be one of 'position', 'speed'; got {surface!r}")
+        self.surface = surface
         self.feedforward = feedforward
         self.theta_max = check_positive("theta_max_mps2", theta_max_mps2)
         self.sigma_span = check_positive("sigma_span_mps", sigma_span_mps)
@@ -143,7 +156,10 @@ class AFSMCController(Controller):
             e_x = math.nan
             z_term = lam * self._int_ev
         # σ = e_v + sat(λ e_z, ±δ); d/dt of the bounded term is λ e_v inside the bound, 0 outside
-        if abs(z_term) < self.catchup_max:
+        if self.surface == "speed":
+            sigma = e_v
+            dz_term = 0.0
+        elif abs(z_term) < self.catchup_max:
             sigma = e_v + z_term
             dz_term = lam * e_v
         else:
@@ -166,7 +182,11 @@ class AFSMCController(Controller):
             th[i] += gamma * sigma * (1.0 - w) * dt
             th[i + 1] += gamma * sigma * w * dt
             np.clip(th, -self.theta_max, self.theta_max, out=th)
-            if not self._time_mode and (abs(z_term) < self.catchup_max or z_term * e_v < 0):
+            if (
+                not self._time_mode
+                and self.surface == "position"
+                and (abs(z_term) < self.catchup_max or z_term * e_v < 0)
+            ):
                 self._int_ev += e_v * dt  # no windup beyond the catch-up bound
         return out, {
             "v_ref": v_ref,
