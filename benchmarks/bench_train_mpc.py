@@ -1,15 +1,17 @@
 """MPC step cost on the papers' problems: wall time per step vs OSQP's own solve time.
 
-Run: ``python benchmarks/bench_train_mpc.py``. For paper 001's single-point problem
-(N = 10) and paper 000's 6-car problem (N = 3, 10, 20), one whole closed-loop scenario
-each; per control step we time the controller's ``compute`` (everything the MPC does:
-reference preview, affine terms, QP vector updates, OSQP, result) and read OSQP's own
-``solve_time`` from the same call. Reported: medians, their ratio, and the share of
-steps whose solve failed (fallback).
+Run: ``python benchmarks/bench_train_mpc.py [--episodes 3]``. For paper 001's
+single-point problem (N = 10) and paper 000's 6-car problem (N = 3, 10, 20), whole
+closed-loop scenarios, one untimed warm-up episode (the QP is built on first use) and
+then ``--episodes`` timed ones; per control step we time the controller's ``compute``
+(everything the MPC does: reference preview, affine terms, QP vector updates, OSQP,
+result) and read OSQP's own ``solve_time`` from the same call. Reported: medians, their
+ratio, and the share of steps whose solve failed (fallback).
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import numpy as np
@@ -19,20 +21,23 @@ from train_envs.scenarios import get_scenario
 from train_envs.simulation import ClosedLoop
 
 
-def bench(scenario: str, ctrl) -> dict[str, float]:
+def bench(scenario: str, ctrl, episodes: int = 3) -> dict[str, float]:
     sc = get_scenario(scenario)
     loop = ClosedLoop(sc, ctrl)
-    loop.reset(seed=0)
     walls, solves, fallbacks = [], [], 0
     compute = ctrl.compute
-    while not loop.done:
-        obs = loop.observe()
-        t0 = time.perf_counter()
-        u, info = compute(obs)
-        walls.append(time.perf_counter() - t0)
-        solves.append(info["solve_time_s"])
-        fallbacks += bool(info["fallback"])
-        loop.step(u)
+    for ep in range(episodes + 1):
+        loop.reset(seed=0)
+        while not loop.done:
+            obs = loop.observe()
+            t0 = time.perf_counter()
+            u, info = compute(obs)
+            wall = time.perf_counter() - t0
+            loop.step(u)
+            if ep:  # episode 0 is the warm-up
+                walls.append(wall)
+                solves.append(info["solve_time_s"])
+                fallbacks += bool(info["fallback"])
     w, s = np.median(walls), np.median(solves)
     return {
         "wall_us": 1e6 * w,
@@ -44,6 +49,9 @@ def bench(scenario: str, ctrl) -> dict[str, float]:
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--episodes", type=int, default=3, help="timed episodes per problem")
+    args = ap.parse_args()
     cases = [
         ("paper001_stopping", "single-point, N=10", PointMassMPC(Np=10)),
         ("paper000_single_section", "6-car SEMPC, N=3", MultiCarMPC(Np=3)),
@@ -55,7 +63,7 @@ def main() -> None:
     )
     print("|---|---:|---:|---:|---:|---:|")
     for scenario, label, ctrl in cases:
-        r = bench(scenario, ctrl)
+        r = bench(scenario, ctrl, args.episodes)
         print(
             f"| {label} | {r['steps']} | {r['wall_us']:.0f} | {r['osqp_us']:.0f} | "
             f"{r['ratio']:.2f} | {100 * r['failed']:.2f} % |"

@@ -297,6 +297,14 @@ class PointMassMPC(_TrainMPCBase):
         a_max = tr.max_traction_N(0.0) / self._mi
         a_min = -tr.max_brake_N(0.0) / self._mi
         big = 1e6
+        # position ≤ stop point and speed ≤ limit: static bounds when the line has one
+        # speed limit (paper 001), otherwise written per step from the horizon's limits
+        track = ctx.track
+        limits = None if track is None else np.unique(track.speed_limits_mps)
+        self._static_ymax = track is None or limits.size == 1
+        y_max = [big if ctx.s_stop_m is None else float(ctx.s_stop_m), big]
+        if track is not None and limits.size == 1:
+            y_max[1] = float(limits[0])
         self._mpc = LinearMPC(
             self._Ad,
             self._Bd,
@@ -310,7 +318,7 @@ class PointMassMPC(_TrainMPCBase):
             du_min=[-rate],
             du_max=[rate],
             y_min=[-big, 0.0],
-            y_max=[big, big],
+            y_max=y_max,
             soft_penalty=self.soft_penalty,
         )
         self._weights_key = tuple(sorted(self._params.items()))
@@ -408,9 +416,10 @@ class PointMassMPC(_TrainMPCBase):
         y_ref, y_max = self._yref_buf, self._ymax_buf
         y_ref[:, 0] = s_r
         y_ref[:, 1] = v_r
-        track = ctx.track
-        if track is not None:
-            limit = track.speed_limit_at
+        if self._static_ymax:
+            y_max = None
+        else:
+            limit = ctx.track.speed_limit_at
             y_max[:, 1] = [limit(si) for si in s_r]
         self._up_buf[0] = u_prev
         sol = self._mpc.solve(x, self._up_buf, y_ref, d=D, y_max=y_max)
