@@ -117,9 +117,15 @@ def test_core_realises_the_dynamic_matrix_and_the_unconstrained_dmc_gain():
             np.testing.assert_allclose(sol.Y[:, 0], u_prev * ctrl.a[: ctrl.P] + A @ dU,
                                        rtol=1e-9, atol=1e-9)
             np.testing.assert_allclose(sol.Y[:, 1], sol.U[:, 0], atol=1e-12)  # level output
-    # an active level bound is respected by the plan
+    # an active level bound is respected by the plan, to OSQP's tolerance (osqp_eps 1e-4:
+    # measured overshoot 1.3e-4 m/s²; 4e-4 m/s² is 160 N on the 400 t train) ...
     sol = ctrl.optimise(w + 5.0, y_free, 0.0, -0.3, 0.3)
-    assert np.all(sol.U[:, 0] <= 0.3 + 1e-4)
+    assert np.all(sol.U[:, 0] <= 0.3 + 4 * ctrl.osqp_eps)
+    # ... and to a few 1e-6 at the core's default tolerance
+    tight = DMCController(osqp_eps=1e-6)
+    tight.reset(ctrl.ctx)
+    sol = tight.optimise(w + 5.0, y_free, 0.0, -0.3, 0.3)
+    assert np.all(sol.U[:, 0] <= 0.3 + 4 * tight.osqp_eps)
 
 
 def test_softening_and_its_adjustment_law():

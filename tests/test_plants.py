@@ -222,3 +222,14 @@ def test_single_car_fast_path_equals_general_path(scenario):
         assert fast.stopped == slow.stopped
     assert fast.work_traction_J == pytest.approx(slow.work_traction_J, rel=1e-12)
     assert fast.work_brake_J == pytest.approx(slow.work_brake_J, rel=1e-12)
+
+
+def test_envelope_lists_equal_the_vectorised_envelope_bit_for_bit():
+    from train_envs.trains import list_trains
+
+    v = np.concatenate([[0.0, -0.0, 1e-12, 0.3], np.linspace(-5.0, 120.0, 251)])
+    for name in list_trains():
+        tr = get_train(name)
+        lo, hi = tr.envelope_N(v)
+        lo_l, hi_l = tr.envelope_lists(v.tolist())
+        assert lo_l == lo.tolist() and hi_l == hi.tolist(), name

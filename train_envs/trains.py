@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import cache, cached_property
 from importlib import resources
@@ -210,6 +211,36 @@ class TrainParams:
         if MD is not None:
             lo = np.minimum(lo, MD)
         return -lo, hi
+
+    def envelope_lists(self, speeds: Sequence[float]) -> tuple[list[float], list[float]]:
+        """:meth:`envelope_N` for a short sequence of finite speeds, as Python lists.
+
+        Same arithmetic per speed as the vectorised form (results equal bit for bit),
+        without a dozen numpy calls on a horizon-sized array.
+        """
+        F, P, MA, a, b, c = self._traction_consts
+        Fb, Pb, Ffr, MD = self._brake_consts
+        lo_out: list[float] = []
+        hi_out: list[float] = []
+        for v in speeds:
+            av = abs(v)
+            hi = F
+            lo = Fb
+            if av > 0.0:
+                if P is not None:
+                    hi = min(hi, P / av)
+                if MA is not None:
+                    hi = min(hi, MA + (a + b * av + c * (av * av)))
+                if Pb is not None:
+                    lo = min(lo, Pb / av)
+            elif MA is not None:
+                hi = min(hi, MA + 0.0)
+            lo += Ffr
+            if MD is not None:
+                lo = min(lo, MD)
+            lo_out.append(-lo)
+            hi_out.append(hi)
+        return lo_out, hi_out
 
     def max_brake_N(self, v: float) -> float:
         """Braking envelope (positive number) = power-limited electric + friction [N]."""

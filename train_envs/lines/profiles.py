@@ -219,7 +219,9 @@ class SpeedProfile:
 
         The scalar twin of :meth:`sv_at_t` for a predictive controller's short,
         uniform preview: the same arithmetic per point (results equal bit for bit), one
-        segment search and a forward walk instead of a dozen numpy calls on tiny arrays.
+        segment search per crossed node interval (bisection from the current segment: a
+reference built on a fine grid has many nodes per dt) instead of a dozen numpy calls
+on tiny arrays.
         """
         tl, sl, vl, al = self._t, self._s, self._v, self._al
         last = len(tl) - 2
@@ -230,8 +232,10 @@ class SpeedProfile:
         for k in range(1, n + 1):
             x = t0 + dt * k
             if x >= t_next and i < last:
-                while i < last and tl[i + 1] <= x:
-                    i += 1
+                # the last node at or before x (nodes may be far denser than dt)
+                i = bisect_right(tl, x, i + 1) - 1
+                if i > last:
+                    i = last
                 t_next = tl[i + 1]
             # min/max written as comparisons (same values, NaN included)
             ti = tl[i]
