@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from train_envs.controllers import CONTROLLERS, DMCController, make_controller
@@ -353,3 +354,24 @@ def test_reset_reuses_the_qp_and_every_episode_equals_a_fresh_controller():
     for (p, seed), got in zip((({}, 0), (params, 1), ({}, 0)), runs, strict=True):
         fresh = simulate(sc, make_controller("dmc", sc, **p), seed=seed).metrics
         assert got == fresh
+
+
+def test_adjustment_figure_shows_alpha_and_h_c_moving(tmp_path, capsys):
+    """004's online softening and correction, plotted: `train-envs simulate` writes the
+    figure for a DMC run; its α and h_c curves are the recorded, moving signals."""
+    from train_envs.cli import main
+    from train_envs.plotting import dmc_adjustment_figure
+
+    assert main(["simulate", "--scenario", "paper004_urban", "--controller", "dmc",
+                 "--out", str(tmp_path)]) == 0
+    assert "paper004_urban_dmc_adjustments.png" in capsys.readouterr().out
+    assert (tmp_path / "paper004_urban_dmc_adjustments.png").stat().st_size > 20_000
+    df = pd.read_csv(tmp_path / "paper004_urban_dmc.csv")
+    fig = dmc_adjustment_figure(df, alpha_bounds=(0.1, 0.4))
+    ax_v, ax_e, ax_a, ax_h = fig.axes
+    alpha = ax_a.lines[1].get_ydata()
+    h_c = ax_h.lines[0].get_ydata()
+    np.testing.assert_array_equal(alpha, df["alpha"].to_numpy()[:-1])
+    assert np.ptp(alpha) > 0.2 and np.ptp(h_c) > 0.1
+    with pytest.raises(ValueError, match="alpha"):
+        dmc_adjustment_figure(df.drop(columns=["alpha"]))

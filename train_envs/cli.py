@@ -72,6 +72,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     )
     png = out / f"{stem}.png"
     fig.savefig(png, dpi=120)
+    pngs = [png]
+    if {"alpha", "h_c", "J"} <= set(res.df.columns):  # the DMC's online adjustments
+        from train_envs.plotting import dmc_adjustment_figure
+
+        p = res.params or {}
+        adj = dmc_adjustment_figure(
+            res.df,
+            title=f"{sc.name} — {args.controller}: online softening and correction",
+            alpha_bounds=(p["alpha_min"], p["alpha_max"]) if "alpha_min" in p else None,
+            h_band=(p["h0"] - 3 * p["k_h"], p["h0"] + 3 * p["k_h"]) if "h0" in p else None,
+        )
+        pngs.append(out / f"{stem}_adjustments.png")
+        adj.savefig(pngs[-1], dpi=120)
     table = pd.Series(res.metrics, name="value").to_frame()
     with pd.option_context("display.float_format", "{:.6g}".format):
         print(
@@ -79,7 +92,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             f"{len(res.df)} rows, {res.wall_time_s:.2f} s wall"
         )
         print(table.to_string())
-    print(f"wrote {png} and {out / (stem + '.csv')}")
+    print(f"wrote {', '.join(map(str, pngs))} and {out / (stem + '.csv')}")
     return 0
 
 

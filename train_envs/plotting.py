@@ -69,3 +69,56 @@ def time_series_figure(df: pd.DataFrame, columns: list[str], *, title: str = "")
         axes[0, 0].set_title(title)
     fig.tight_layout()
     return fig
+
+
+def dmc_adjustment_figure(
+    df: pd.DataFrame,
+    *,
+    title: str = "",
+    alpha_bounds: tuple[float, float] | None = None,
+    h_band: tuple[float, float] | None = None,
+) -> Figure:
+    """Paper 004's online adjustments over one run (004 §4.2–4.3), against time.
+
+    Panels: speed and reference [km/h]; the speed error ``v_ref − v`` [km/h]; the fuzzy
+    satisfaction index ``J`` with the softening factor ``α`` it sets (dashed: the
+    ``alpha_bounds`` it moves between); the correction coefficient ``h_c`` (dashed: the
+    ``h_band`` h_0 ± 3 k_h it can reach). Needs the DMC's recorded columns ``alpha``,
+    ``h_c`` and ``J`` (``train_envs.simulation.INFO_COLUMNS``).
+    """
+    missing = [c for c in ("t_s", "v_mps", "v_ref_mps", "alpha", "h_c", "J") if c not in df]
+    if missing:
+        raise ValueError(f"dmc_adjustment_figure needs the columns {missing} (a DMC run)")
+    run = df.iloc[:-1]  # the last row is the final state, not a control step
+    t = run["t_s"]
+    fig, axes = plt.subplots(
+        4, 1, figsize=(9, 8), sharex=True, gridspec_kw={"height_ratios": [2, 1, 1.4, 1.2]}
+    )
+    ax_v, ax_e, ax_a, ax_h = axes
+    ax_v.plot(t, run["v_ref_mps"] * 3.6, color="black", lw=1.0, ls=":", label="reference")
+    ax_v.plot(t, run["v_mps"] * 3.6, lw=1.3, label="train")
+    ax_v.set_ylabel("speed [km/h]")
+    ax_v.legend(loc="best", fontsize=8)
+    ax_e.plot(t, (run["v_ref_mps"] - run["v_mps"]) * 3.6, lw=1.0, color="tab:purple")
+    ax_e.axhline(0.0, color="grey", lw=0.6)
+    ax_e.set_ylabel("error [km/h]")
+    ax_a.plot(t, run["J"], lw=0.8, color="tab:gray", label="satisfaction J")
+    ax_a.plot(t, run["alpha"], lw=1.3, color="tab:orange", label="softening α")
+    if alpha_bounds is not None:
+        for b in alpha_bounds:
+            ax_a.axhline(b, color="tab:orange", lw=0.7, ls="--")
+    ax_a.set_ylabel("J, α")
+    ax_a.set_ylim(-0.05, 1.05)
+    ax_a.legend(loc="best", fontsize=8)
+    ax_h.plot(t, run["h_c"], lw=1.2, color="tab:green")
+    if h_band is not None:
+        for b in h_band:
+            ax_h.axhline(b, color="tab:green", lw=0.7, ls="--")
+    ax_h.set_ylabel("correction h_c")
+    ax_h.set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    if title:
+        ax_v.set_title(title)
+    fig.tight_layout()
+    return fig
