@@ -25,12 +25,17 @@ def test_zoh_matches_matrix_exponential_of_double_integrator():
     np.testing.assert_allclose(Bd[:, 0], [0.125, 0.5])
 
 
-def test_terminal_cost_satisfies_lyapunov_equation():
+def _sempc_terminal_data():
+    """A reset SEMPC of paper 000 with its state weight ``Qx`` and input weight ``R``."""
     sc = get_scenario("paper000_single_section")
     c = make_controller("sempc", sc)
     c.reset(sc.control_context())
     Q, R, _ = c._weights()
-    Qx = c._C.T @ Q @ c._C
+    return sc, c, c._C.T @ Q @ c._C, R
+
+
+def test_terminal_cost_satisfies_lyapunov_equation():
+    _, c, Qx, R = _sempc_terminal_data()
     P, K, Px = augmented_terminal_cost(c._Ad, c._Bd, Qx, R)
     n, m = c._Bd.shape
     Aa = np.block([[c._Ad, c._Bd], [np.zeros((m, n)), np.eye(m)]])
@@ -49,11 +54,7 @@ def test_terminal_cost_falls_back_to_doubling_when_schur_method_fails(monkeypatc
     step; the doubling iteration then gives the same stabilising solution."""
     import train_envs.controllers.train_mpc as tm
 
-    sc = get_scenario("paper000_single_section")
-    c = make_controller("sempc", sc)
-    c.reset(sc.control_context())
-    Q, R, _ = c._weights()
-    Qx = c._C.T @ Q @ c._C
+    sc, c, Qx, R = _sempc_terminal_data()
     P_ref, K_ref, _ = augmented_terminal_cost(c._Ad, c._Bd, Qx, R)
 
     def failing(*args, **kwargs):
