@@ -90,7 +90,7 @@ from train_envs.controllers._common import (
 )
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.fuzzy import UNIVERSE, standard_partition
-from train_envs.validation import check_positive
+from train_envs.validation import check_choice, check_positive
 
 
 class AFSMCController(Controller):
@@ -113,9 +113,8 @@ class AFSMCController(Controller):
         surface: str = "position",
         **params: float,
     ) -> None:
-        if surface not in ("position", "speed"):
-            raise ValueError(f"surface must be one of 'position', 'speed'; got {surface!r}")
-        self.surface = surface
+        self.surface = check_choice("surface", surface, ("position", "speed"))
+        self._speed_surface = self.surface == "speed"
         self.feedforward = feedforward
         self.theta_max = check_positive("theta_max_mps2", theta_max_mps2)
         self.sigma_span = check_positive("sigma_span_mps", sigma_span_mps)
@@ -156,7 +155,7 @@ class AFSMCController(Controller):
             e_x = math.nan
             z_term = lam * self._int_ev
         # σ = e_v + sat(λ e_z, ±δ); d/dt of the bounded term is λ e_v inside the bound, 0 outside
-        if self.surface == "speed":
+        if self._speed_surface:
             sigma = e_v
             dz_term = 0.0
         elif abs(z_term) < self.catchup_max:
@@ -184,7 +183,7 @@ class AFSMCController(Controller):
             np.clip(th, -self.theta_max, self.theta_max, out=th)
             if (
                 not self._time_mode
-                and self.surface == "position"
+                and not self._speed_surface
                 and (abs(z_term) < self.catchup_max or z_term * e_v < 0)
             ):
                 self._int_ev += e_v * dt  # no windup beyond the catch-up bound
