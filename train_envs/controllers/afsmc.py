@@ -21,14 +21,14 @@ Errors ``e_v = v_ref − v``; sliding variable ``σ = ė_z + λ e_z`` on an erro
 * reference mode ``"distance"`` (v_ref(s), no meaningful s_ref(t)): ``e_z = ∫e_v dt``,
   so ``σ = e_v + λ ∫e_v dt`` — speed error only.
 
-``surface="speed"`` drops the position/integral part: ``σ = e_v``, the sliding surface
-of a relative-degree-one speed loop (v̇ driven directly by u), which is what speed-
-tracking sliding-mode train controllers use (e.g. Cao et al., IEEE TVT 68(7), 2019, paper
-000's ref. [16]). Such a controller has no position feedback, so its position error
-drifts with every unmodelled force. It is registered as ``"afsmc000"``, our
-reconstruction of paper 000's comparator (ref. [18], Guo et al., IET ITS 17(2), 2023,
-whose law 000 does not restate): 000's Tables 2 and 4 report E_x of 57–90 m and stopping
-errors of 25–74 m for it, which no controller with position feedback would show.
+``surface="speed"`` drops the position/integral part: ``σ = e_v``, the first-order
+sliding surface of the speed loop (v̇ is driven directly by u, relative degree one).
+Such a controller tracks speed only, so its position error drifts with every
+unmodelled force. It is registered as ``"afsmc000"``, our reconstruction of paper 000's
+comparator (ref. [18], Guo et al., IET ITS 17(2), 2023, whose law 000 does not restate
+and which we could not consult): 000's Tables 2 and 4 report E_x of 57–90 m and
+stopping errors of 25–74 m for it, which no controller with position feedback would
+show, so the comparator is taken as a speed-tracking design.
 
 Control law (whole-train force)::
 
