@@ -61,4 +61,3 @@ def reproduce_paper000(seed: int = 0) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
-
