@@ -220,8 +220,8 @@ class SpeedProfile:
         The scalar twin of :meth:`sv_at_t` for a predictive controller's short,
         uniform preview: the same arithmetic per point (results equal bit for bit), one
         segment search per crossed node interval (bisection from the current segment: a
-reference built on a fine grid has many nodes per dt) instead of a dozen numpy calls
-on tiny arrays.
+        reference built on a fine grid has many nodes per dt) instead of a dozen numpy
+        calls on tiny arrays.
         """
         tl, sl, vl, al = self._t, self._s, self._v, self._al
         last = len(tl) - 2
