@@ -613,7 +613,6 @@ class DMCController(Controller):
         self._ff_prev = 0.0
         self._e_prev: float | None = None
         self._edot = 0.0
-        self._dU_plan = np.zeros(self.L)
         #: the gradient feedforward is read this far ahead (actuator lag + dead time)
         self._ff_lead = (tau + ctx.dead_time_s) if self.ff_lead else 0.0
         self._t_lo = self.t_bounds_samples[0] * dt
@@ -637,7 +636,8 @@ class DMCController(Controller):
         sum of the mean) stay in NumPy. Look-ups go through the owners' own methods: the
         time-indexed :class:`SpeedProfile`'s scalar ``v_at_t``/``s_at_t`` and
         :meth:`SpeedProfile.sample_sv` (equal to its array methods bit for bit), and
-        ``TrainParams.envelope_N`` for the force bounds.
+        ``TrainParams.envelope_lists`` (equal to ``envelope_N`` bit for bit) for the
+        force bounds over the plan.
         """
         dt = ctx.dt_s
         P, N = self.P, self.N

@@ -266,8 +266,6 @@ class RuleBase2:
         self.scale_e = float(scale_e)
         self.scale_ec = float(scale_ec)
         self.names = names
-        self._lo_e, self._hi_e = self.pe._lo, self.pe._hi
-        self._lo_c, self._hi_c = self.pc._lo, self.pc._hi
 
     @property
     def output_range(self) -> tuple[float, float]:

@@ -1418,7 +1418,6 @@ class LinearMPC:
         # condensed data for gain_unconstrained(), the refinement and the fallback
         self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
         self._Xth, self._Sx = Xth, Sx
-        self._Uth_c = Uth[:nz]
 
     def _q_init(self) -> np.ndarray:
         q = np.zeros(self._nv)

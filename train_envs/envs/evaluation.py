@@ -106,7 +106,7 @@ class EnvCache:
         with self._lock:
             self._idle.setdefault(key, []).append((env, self._registered(env_id)))
             self._idle.move_to_end(key)
-            while sum(len(v) for v in self._idle.values()) > self.maxsize:
+            while len(self) > self.maxsize:
                 old_key = next(iter(self._idle))
                 entries = self._idle[old_key]
                 evicted.append(entries.pop(0)[0])
