@@ -1950,10 +1950,19 @@ class LinearMPC:
         the unique optimum (zero duals; at ε = 0 the slack rows' multipliers are the
         penalties themselves).  The inverse is formed once per matrix update and only
         used when it inverts ``H_zz`` to 1e-9.
+
+        *Pinned inputs.*  With absolute inputs as variables (``delta_u=False``) an input
+        row whose lower and upper bound coincide fixes its variable (e.g. the held
+        increments of self-triggered MPC).  Then ``z`` is the minimiser over the free
+        variables with the pinned ones at their values, ``z_F = −H_FF⁻¹ (q_F + H_FP z_P)``
+        -- the optimum of the problem with only those equalities, hence of the QP when
+        every other row holds.  The reduced inverse is cached per pinned pattern.  The
+        returned duals are zero (a warm start only; the pinned rows' multipliers are
+        not computed).
         """
         unc = self._unc
+        nz = self._nz
         if unc is None:
-            nz = self._nz
             Pu = self._P_dense[:nz, :nz]
             H = Pu + Pu.T - np.diag(np.diag(Pu))
             try:
@@ -1962,21 +1971,59 @@ class LinearMPC:
             except np.linalg.LinAlgError:
                 ok = False
             unc = self._unc = (
-                (np.ascontiguousarray(-Hinv), np.ascontiguousarray(self._A_dense[:, :nz]))
+                (
+                    np.ascontiguousarray(-Hinv),
+                    np.ascontiguousarray(self._A_dense[:, :nz]),
+                    H,
+                    {},
+                )
                 if ok
                 else False
             )
         if unc is False:
             return None
-        mHinv, Az = unc
-        qz = q[: self._nz]
-        z = np.dot(mHinv, qz)
+        mHinv, Az, H, reduced = unc
+        qz = q[:nz]
+        r0 = self._r0
+        if not self._zdu and (pin := self._l[r0 : r0 + nz] == self._u[r0 : r0 + nz]).any():
+            key = pin.tobytes()
+            red = reduced.get(key)
+            if red is None:
+                free = np.flatnonzero(~pin)
+                fixed = np.flatnonzero(pin)
+                HFF = H[np.ix_(free, free)]
+                try:
+                    Mi = np.linalg.inv(HFF)
+                    good = np.abs(HFF @ Mi - np.eye(free.size)).max() < 1e-9
+                except np.linalg.LinAlgError:
+                    good = False
+                red = reduced[key] = (
+                    (free, fixed, np.ascontiguousarray(-Mi), H[np.ix_(free, fixed)])
+                    if good
+                    else False
+                )
+            if red is False:
+                return None
+            free, fixed, mMi, HFP = red
+            zp = self._l[r0 + fixed]
+            z = np.empty(nz)
+            z[fixed] = zp
+            if zp.any():
+                z[free] = np.dot(mMi, qz[free] + np.dot(HFP, zp))
+                obj = 0.5 * float(np.dot(z, np.dot(H, z))) + float(np.dot(qz, z))
+            else:
+                zf = np.dot(mMi, qz[free])
+                z[free] = zf
+                obj = 0.5 * float(np.dot(qz[free], zf))
+        else:
+            z = np.dot(mHinv, qz)
+            obj = 0.5 * float(np.dot(qz, z))
         g = np.dot(Az, z)
         if not ((g >= self._l).all() and (g <= self._u).all()):
             return None
         x = np.zeros(self._nv)
-        x[: self._nz] = z
-        return x, np.zeros(self._nA), 0.5 * float(np.dot(qz, z))
+        x[:nz] = z
+        return x, np.zeros(self._nA), obj
 
     def _predictions(self, x: np.ndarray, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``th``)."""

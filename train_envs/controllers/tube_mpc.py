@@ -605,6 +605,7 @@ class TubeMPC(Controller):
             form=self.qp_form,
             osqp_settings=self.osqp_settings,
             stage_scales=self._stage_scales(M),
+            unconstrained_first=True,
             **terminal,
         )
         prob = _Problem(M=M, Np=Np, mpc=mpc, tight=tight, H_N=H_N)
