@@ -321,6 +321,8 @@ def _non_default_params(env_id, phase):
         ("TrainEnvs/Yizhuang-v0", {"max_episode_steps": 25}),
         # RSMPC keeps its QPs across episodes: a reused env gets a fresh controller
         ("TrainEnvs/Stopping001-v0", {}),
+        # the DMC keeps its QP too, built without the tunable parameters: kept as it is
+        ("TrainEnvs/Urban004-v0", {"max_episode_steps": 30}),
     ],
 )
 def test_reused_env_evaluates_like_a_fresh_env_bitwise(env_id, config):

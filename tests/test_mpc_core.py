@@ -257,6 +257,39 @@ def test_unconstrained_first_is_exact_and_falls_back_to_osqp():
     assert shortcut >= 5 and osqp_runs >= 5
 
 
+def test_unconstrained_first_with_pinned_inputs_is_exact():
+    """Inputs fixed by equal per-stage bounds (a hold, move blocking) keep the shortcut
+    exact: its plan and cost equal a tight OSQP solve of the same pinned problem."""
+    hits = pinned_nonzero = 0
+    for seed in range(1, 40, 2):  # absolute-input form (delta_u=False)
+        case = random_instance(seed)
+        inst = {**case["inst"], "delta_u": False}
+        for k in ("u_min", "u_max", "du_min", "du_max", "y_min", "y_max"):
+            if inst[k] is not None:
+                inst[k] = 10.0 * inst[k]
+        data = {**case["data"], "y_max_override": None}
+        rng = np.random.default_rng(seed)
+        Nc, m = inst["Nc"], inst["B"].shape[1]
+        lo = np.tile(inst["u_min"], (Nc, 1))
+        hi = np.tile(inst["u_max"], (Nc, 1))
+        pin = rng.random((Nc, m)) < 0.4
+        val = np.where(rng.random((Nc, m)) < 0.5, 0.0, rng.uniform(-0.5, 0.5, (Nc, m)))
+        lo[pin] = hi[pin] = val[pin]
+        fast = make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True)
+        ref = make_mpc(inst, osqp_settings=TIGHT, form="condensed")
+        for mpc in (fast, ref):
+            mpc.set_base_bounds(u_min=lo, u_max=hi)
+        a, b = solve(fast, data), solve(ref, data)
+        assert not a.fallback and not b.fallback
+        np.testing.assert_allclose(a.U, b.U, atol=1e-6, err_msg=f"seed {seed}")
+        assert a.cost == pytest.approx(b.cost, rel=1e-6, abs=1e-7)
+        if a.status == "solved (unconstrained)":
+            hits += 1
+            np.testing.assert_array_equal(a.U[pin], val[pin])  # exactly the pinned values
+            pinned_nonzero += bool(pin.any() and np.any(val[pin] != 0.0))
+    assert hits >= 5 and pinned_nonzero >= 2
+
+
 @pytest.mark.parametrize("form", ["condensed", "sparse"])
 def test_default_settings_are_accurate_on_random_instances(form):
     """With the default OSQP tolerances the plan is still within 1e-3 of the optimum."""

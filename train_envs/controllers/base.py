@@ -127,6 +127,13 @@ class Controller:
     name: str = "controller"
     #: tunable parameters; subclasses override
     PARAMS: tuple[TunableParam, ...] = ()
+    #: whether data the controller keeps across :meth:`reset` (e.g. a QP built once)
+    #: was formed with the parameters of an earlier episode, so that only a new
+    #: controller equals a fresh one bit for bit; a reused env then rebuilds it
+    #: (:meth:`~train_envs.envs.train_env.TrainTuningEnv.renew_controller`).  True unless
+    #: a subclass knows better: a controller whose ``reset`` re-derives everything the
+    #: parameters touch declares False.
+    keeps_parameter_state: bool = True
 
     def __init__(self, **params: float) -> None:
         self._params: dict[str, float] = {p.name: p.default for p in self.PARAMS}

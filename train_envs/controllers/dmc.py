@@ -404,6 +404,9 @@ class DMCController(Controller):
     """DMC with fuzzy online softening factor α and correction coefficient h_c (paper 004)."""
 
     name = "dmc"
+    #: the model, dynamic matrix and QP kept across resets do not depend on the seven
+    #: tunable parameters (see reset): a reused env keeps this controller
+    keeps_parameter_state = False
     PARAMS = (
         TunableParam("alpha_max", 0.0, 0.99, 0.4,
                      description="largest softening factor α_max [-]"),

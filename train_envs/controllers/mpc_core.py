@@ -1993,8 +1993,8 @@ class LinearMPC:
                 fixed = np.flatnonzero(pin)
                 HFF = H[np.ix_(free, free)]
                 try:
-                    Mi = np.linalg.inv(HFF)
-                    good = np.abs(HFF @ Mi - np.eye(free.size)).max() < 1e-9
+                    Mi = np.linalg.inv(HFF) if free.size else np.zeros((0, 0))
+                    good = not free.size or np.abs(HFF @ Mi - np.eye(free.size)).max() < 1e-9
                 except np.linalg.LinAlgError:
                     good = False
                 red = reduced[key] = (

@@ -217,7 +217,7 @@ class TrainTuningEnv(gym.Env):
         :func:`~train_envs.envs.evaluate` relies on when it reuses envs). Returns whether
         it rebuilt anything; takes effect at the next ``reset``.
         """
-        if not self._params_changed:
+        if not self._params_changed or not self.controller.keeps_parameter_state:
             return False
         cfg = self.config
         self.controller = make_controller(
