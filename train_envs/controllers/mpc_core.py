@@ -193,6 +193,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
+_min_reduce = np.minimum.reduce
+
 __all__ = [
     "LinearMPC",
     "MPCSolution",
@@ -1210,6 +1212,7 @@ class LinearMPC:
         :meth:`gain_unconstrained`, the exact refinement and the fallback prediction.
         """
         self._unc = None  # the unconstrained shortcut's data follow the matrices
+        self._pin_key: bytes | None | bool = False  # pinned inputs: not looked at yet
         n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
         A, B, C = self._A, self._B, self._C
         nt = self._ntheta
@@ -1602,6 +1605,7 @@ class LinearMPC:
             if np.any(new[0] > new[1]):
                 raise ValueError("set_base_bounds(): u_min must not exceed u_max at any stage")
             lo0[r0 : r0 + nu], hi0[r0 : r0 + nu] = new
+            self._pin_key = False
         if y_min is not None or y_max is not None:  # called every step: keep it lean
             g, _, cols, lb, ub_pos, _ = self._bounds_entry("y")
             if g is None:
@@ -1814,12 +1818,24 @@ class LinearMPC:
 
         # unconstrained optimum when it is feasible (exact; see unconstrained_first) ---
         if self._unc_first:
-            hit = self._unconstrained(v[self._sl_q])
+            hit = self._unconstrained(v[self._sl_q], relax)
             if hit is not None:
                 x, y, obj_val = hit
                 status_val, status, iters, solve_time = _SOLVED, _UNCONSTRAINED, 0, 0.0
                 return self._finish(
-                    t_start, x, y, v, th, upl, up, status, status_val, iters, solve_time, obj_val
+                    t_start,
+                    x,
+                    y,
+                    v,
+                    th,
+                    upl,
+                    up,
+                    status,
+                    status_val,
+                    iters,
+                    solve_time,
+                    obj_val,
+                    0.0,
                 )
 
         # OSQP -----------------------------------------------------------------------
@@ -1878,8 +1894,10 @@ class LinearMPC:
         iters: int,
         solve_time: float,
         obj_val: float,
+        slack_max: float | None = None,
     ) -> MPCSolution:
-        """Plan, safe first move, cost and warm start from a solution ``(x, y)``."""
+        """Plan, safe first move, cost and warm start from a solution ``(x, y)``
+        (``slack_max`` when the caller knows it)."""
         # result ---------------------------------------------------------------------
         if self._sparse:  # states and (absolute) inputs are variables
             U = x[self._oz : self._oe].reshape(self.Nc, self.m)
@@ -1907,7 +1925,9 @@ class LinearMPC:
         Lv = v[self._sl_L]
         cost = obj_val + float(np.dot(Lv, Lv))
         ns = self._ns
-        if ns == 0:
+        if slack_max is not None:
+            pass
+        elif ns == 0:
             slack_max = 0.0
         elif ns <= 64:  # python max beats a ufunc call for short vectors
             slack_max = max(0.0, max(x[self._oe :].tolist()))
@@ -1942,7 +1962,9 @@ class LinearMPC:
             _Predictions(self, x, th),
         )
 
-    def _unconstrained(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:
+    def _unconstrained(
+        self, q: np.ndarray, relax: bool
+    ) -> tuple[np.ndarray, np.ndarray, float] | None:
         """``(x, y, objective)`` of the unconstrained minimiser if it is feasible, else None.
 
         Condensed QP ``min ½ wᵀPw + qᵀw``, ``w = [z; ε]``: ``z = −H_zz⁻¹ q_z`` with zero
@@ -1985,10 +2007,20 @@ class LinearMPC:
         mHinv, Az, H, reduced = unc
         qz = q[:nz]
         r0 = self._r0
-        if not self._zdu and (pin := self._l[r0 : r0 + nz] == self._u[r0 : r0 + nz]).any():
-            key = pin.tobytes()
+        if self._zdu:
+            key = None
+        elif relax:  # this call's input rows are the reachable box: look at them
+            pin = self._l[r0 : r0 + nz] == self._u[r0 : r0 + nz]
+            key = pin.tobytes() if pin.any() else None
+        else:  # the base input rows, which change only in set_base_bounds
+            key = self._pin_key
+            if key is False:
+                pin = self._Lb0[r0 : r0 + nz] == self._Ub0[r0 : r0 + nz]
+                key = self._pin_key = pin.tobytes() if pin.any() else None
+        if key is not None:
             red = reduced.get(key)
             if red is None:
+                pin = np.frombuffer(key, dtype=bool)
                 free = np.flatnonzero(~pin)
                 fixed = np.flatnonzero(pin)
                 HFF = H[np.ix_(free, free)]
@@ -1997,33 +2029,43 @@ class LinearMPC:
                     good = not free.size or np.abs(HFF @ Mi - np.eye(free.size)).max() < 1e-9
                 except np.linalg.LinAlgError:
                     good = False
-                red = reduced[key] = (
-                    (free, fixed, np.ascontiguousarray(-Mi), H[np.ix_(free, fixed)])
-                    if good
-                    else False
-                )
+                if good:
+                    # −H_FF⁻¹ embedded in the full space (zero rows/columns at the pinned
+                    # variables): z = K (q + H z_P) + z_P without any gather or scatter
+                    K = np.zeros((nz, nz))
+                    K[np.ix_(free, free)] = -Mi
+                    Hp = np.zeros((nz, nz))
+                    Hp[:, fixed] = H[:, fixed]
+                    red = (r0 + fixed, np.ascontiguousarray(K), Hp)
+                else:
+                    red = False
+                reduced[key] = red
             if red is False:
                 return None
-            free, fixed, mMi, HFP = red
-            zp = self._l[r0 + fixed]
-            z = np.empty(nz)
-            z[fixed] = zp
+            rows_p, K, Hp = red
+            zp = self._l[rows_p]
             if zp.any():
-                z[free] = np.dot(mMi, qz[free] + np.dot(HFP, zp))
+                zP = np.zeros(nz)
+                zP[rows_p - r0] = zp
+                z = np.dot(K, qz + np.dot(Hp, zP))
+                z += zP
                 obj = 0.5 * float(np.dot(z, np.dot(H, z))) + float(np.dot(qz, z))
-            else:
-                zf = np.dot(mMi, qz[free])
-                z[free] = zf
-                obj = 0.5 * float(np.dot(qz[free], zf))
+            else:  # pinned at zero (a hold): the free part only
+                z = np.dot(K, qz)
+                obj = 0.5 * float(np.dot(qz, z))
         else:
             z = np.dot(mHinv, qz)
             obj = 0.5 * float(np.dot(qz, z))
         g = np.dot(Az, z)
-        if not ((g >= self._l).all() and (g <= self._u).all()):
+        # l <= g <= u row by row (bounds are clipped to ±_BIG, so finite; NaN fails)
+        if not (_min_reduce(g - self._l) >= 0.0 and _min_reduce(self._u - g) >= 0.0):
             return None
         x = np.zeros(self._nv)
         x[:nz] = z
-        return x, np.zeros(self._nA), obj
+        y = self.__dict__.get("_y_zero")
+        if y is None or y.size != self._nA:
+            y = self._y_zero = np.zeros(self._nA)  # shared: nothing writes into duals
+        return x, y, obj
 
     def _predictions(self, x: np.ndarray, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``th``)."""

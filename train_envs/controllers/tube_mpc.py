@@ -730,6 +730,13 @@ class TubeMPC(Controller):
         self._inv_dt = 1.0 / ctx.dt_s
         self._term_idx = np.asarray(self.settings.terminal_steps, dtype=int)
         self._E4 = self._model.E[:, 0].copy()
+        self._minus_E4 = -self._E4
+        # a line with one speed limit (paper 001): the limit row is the same every step
+        lims = None if ctx.track is None else np.unique(ctx.track.speed_limits_mps)
+        self._v_lim_const = (
+            np.full(self._n_grid, float(lims[0])) if lims is not None and lims.size == 1 else None
+        )
+        self._v_lim_none = np.full(self._n_grid, _BIG)
         self._pend = np.zeros(l)
         self._initialised = False
         self._multi = ctx.n_inputs > 1
@@ -750,12 +757,13 @@ class TubeMPC(Controller):
         prof = self._prof
         t0 = float(prof.t_at_s(obs.s_m)) if self._distance_mode else obs.t_s
         ts = self._tgrid + t0
-        s_r = prof.s_at_t(ts)
-        v_r = prof.v_at_t(ts)
+        s_r, v_r = prof.sv_at_t(ts)  # one segment search for both
         # nominal resistance per unit inertial mass at the reference (w_ff = −that)
-        res = self._ca * (v_r > 0) + (self._cb + self._cc * v_r) * v_r
+        res = self._cb + self._cc * v_r
+        res *= v_r
+        res += self._ca * (v_r > 0)
         if self._grad is not None:
-            res = res + self._cg * self._grad(s_r)
+            res += self._cg * self._grad(s_r)
         mi = self._mi
         u_prev = float(obs.u_prev_N.sum()) / mi
         if not self._initialised:
@@ -766,21 +774,26 @@ class TubeMPC(Controller):
         if l:
             x = m.Phi_l @ x + m.Gam_u @ self._pend - m.Gam_w @ res[:l]  # w_ff = −res
         s_o = float(x[0])
-        n = ts.size
         # reference state ξ_s = [s_r, v_r, a_s, u_s]: a_s = mean reference acceleration of
         # the next interval minus w_ff, u_s = a_s of the previous interval
-        xs = np.empty((n, 4))
-        xs[:, 0] = s_r - s_o
+        xs = np.empty((ts.size, 4))
+        np.subtract(s_r, s_o, out=xs[:, 0])
         xs[:, 1] = v_r
-        xs[:-1, 2] = np.diff(v_r) * self._inv_dt + res[:-1]
+        a_s = xs[:-1, 2]
+        np.subtract(v_r[1:], v_r[:-1], out=a_s)
+        a_s *= self._inv_dt
+        a_s += res[:-1]
         xs[-1, 2] = xs[-2, 2]
-        xs[1:, 3] = xs[:-1, 2]
+        xs[1:, 3] = a_s
         xs[0, 3] = xs[0, 2]
-        track = self._track
-        v_lim = track.speed_limit_at(s_r) if track is not None else np.full(n, _BIG)
+        v_lim = self._v_lim_const
+        if v_lim is None:
+            track = self._track
+            v_lim = track.speed_limit_at(s_r) if track is not None else self._v_lim_none
+        D = np.multiply(res[:, None], self._minus_E4)  # d_j = E w_ff,j
         return {
             "xs": xs,
-            "D": np.outer(-res, self._E4),
+            "D": D,
             "v_lim": v_lim,
             "xi0": np.array([0.0, x[1], x[2], u_prev]),
             "s_o": s_o,
