@@ -108,7 +108,9 @@ self-triggered family was 2x slower).  Positions are passed relative to the
 dead-time predicted position (eq. 9 is translation invariant in ``s``), which keeps
 the QP data O(1).  The QPs are built once per problem structure and kept across
 episodes; :meth:`LinearMPC.reset_solver` at every reset keeps runs reproducible per
-seed.
+seed.  Each QP first tries the exact unconstrained optimum (``unconstrained_first`` of
+:class:`LinearMPC`, held increments pinned): on paper 001's runs no tightened row binds
+at 98 % of the solves (undisturbed) and OSQP runs only for the rest.
 
 Reference: L. Chisci, J. A. Rossiter, G. Zappa, "Systems with persistent
 disturbances: predictive control with restricted constraints", Automatica 37 (2001).
