@@ -21,7 +21,7 @@ from train_envs.controllers.dmc import (
     step_response,
 )
 from train_envs.plants.multi_car import ActuatorParams, TrainPlant
-from train_envs.scenarios import get_scenario
+from train_envs.scenarios import DisturbanceSpec, get_scenario
 from train_envs.simulation import ClosedLoop, simulate
 
 RNG = np.random.default_rng(2024)
@@ -375,3 +375,30 @@ def test_adjustment_figure_shows_alpha_and_h_c_moving(tmp_path, capsys):
     assert np.ptp(alpha) > 0.2 and np.ptp(h_c) > 0.1
     with pytest.raises(ValueError, match="alpha"):
         dmc_adjustment_figure(df.drop(columns=["alpha"]))
+
+
+def test_classic_law_steps_are_the_qp_optimum():
+    """Steps decided by the classic DMC law (no active row) equal sending every step
+    through the QP core, up to OSQP's tolerance on the constrained steps; most steps
+    need no QP at all."""
+    sc = get_scenario("paper004_urban").with_overrides(
+        disturbance=DisturbanceSpec(random_bound_mps2=0.03, mass_factor_range=(0.9, 1.15))
+    )
+    params = {"alpha_max": 0.7, "k_h": 0.2}
+    runs = {}
+    for classic in (True, False):
+        ctrl = DMCController(classic_law=classic, **params)
+        loop = ClosedLoop(sc, ctrl)
+        loop.reset(seed=4)
+        qp = 0
+        while not loop.done:
+            qp += loop.step()["iterations"] > 0
+        runs[classic] = (loop.result(), qp, loop.k)
+    (a, qp_a, n), (b, _, _) = runs[True], runs[False]
+    assert qp_a <= 0.25 * n  # the bounds bind on a minority of the steps (12 % here)
+    assert qp_a > 0  # ... but they do bind: both paths are exercised
+    np.testing.assert_allclose(a.df["v_mps"], b.df["v_mps"], rtol=0, atol=1e-4)
+    for key in ("ITAE_ms", "E_p_m", "energy_kWh", "comfort_mean_abs_jerk_mps3"):
+        assert a.metrics[key] == pytest.approx(b.metrics[key], rel=1e-3), key
+    with pytest.raises(ValueError, match="classic_law"):
+        DMCController(classic_law="yes")

@@ -233,3 +233,23 @@ def test_envelope_lists_equal_the_vectorised_envelope_bit_for_bit():
         lo, hi = tr.envelope_N(v)
         lo_l, hi_l = tr.envelope_lists(v.tolist())
         assert lo_l == lo.tolist() and hi_l == hi.tolist(), name
+
+
+def test_envelope_box_lies_inside_the_envelope_over_the_interval():
+    """envelope_box(v_lo, v_hi): lo >= −B(v) and hi <= F(v) at every speed of the
+    interval (dense samples, both ends included), and it is the envelope itself when the
+    interval is a single speed."""
+    from train_envs.trains import list_trains
+
+    rng = np.random.default_rng(11)
+    for name in list_trains():
+        tr = get_train(name)
+        for v_lo, v_hi in [(0.0, 0.0), (0.0, 3.0), (0.0, 60.0), (12.0, 14.0), (25.0, 25.0)] + [
+            tuple(sorted(rng.uniform(0.0, 50.0, 2))) for _ in range(20)
+        ]:
+            lo_b, hi_b = tr.envelope_box(v_lo, v_hi)
+            v = np.concatenate([[v_lo, v_hi], np.linspace(v_lo, v_hi, 201)])
+            lo, hi = tr.envelope_N(v)
+            assert np.all(lo <= lo_b) and np.all(hi >= hi_b), (name, v_lo, v_hi)
+            if v_lo == v_hi:
+                assert (lo_b, hi_b) == (float(lo[0]), float(hi[0])), name

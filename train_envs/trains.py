@@ -242,6 +242,33 @@ class TrainParams:
             hi_out.append(hi)
         return lo_out, hi_out
 
+    def envelope_box(self, v_lo: float, v_hi: float) -> tuple[float, float]:
+        """A box inside the force envelope for every speed in ``[v_lo, v_hi]`` (``0 ≤ v_lo
+        ≤ v_hi``): ``(lo, hi)`` with ``−max_brake_N(v) ≤ lo`` and ``hi ≤ max_traction_N(v)``.
+
+        The brake envelope shrinks with speed (constant, then power-limited), so its
+        smallest magnitude is at ``v_hi``; the traction envelope ``min(F, P/v, M a_max +
+        R(v))`` is bounded below by ``min(F, P/v_hi, M a_max + R(v_lo))`` (``P/v``
+        falls, the Davis resistance ``R`` rises with speed: all coefficients are
+        non-negative).  Rounding is monotone, so the bounds hold in floating point too.
+        A controller can test a plan against this box with two evaluations and fall
+        back to :meth:`envelope_lists` only when the box is too tight.
+        """
+        F, P, MA, a, b, c = self._traction_consts
+        Fb, Pb, Ffr, MD = self._brake_consts
+        hi = F
+        if v_hi > 0.0 and P is not None:
+            hi = min(hi, P / v_hi)
+        if MA is not None:
+            hi = min(hi, MA + ((a + b * v_lo + c * (v_lo * v_lo)) if v_lo > 0.0 else 0.0))
+        lo = Fb
+        if v_hi > 0.0 and Pb is not None:
+            lo = min(lo, Pb / v_hi)
+        lo += Ffr
+        if MD is not None:
+            lo = min(lo, MD)
+        return -lo, hi
+
     def max_brake_N(self, v: float) -> float:
         """Braking envelope (positive number) = power-limited electric + friction [N]."""
         f, P, Ffr, MD = self._brake_consts

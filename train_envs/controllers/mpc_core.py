@@ -1648,6 +1648,38 @@ class LinearMPC:
             hi0[g.ub_pos[0]] = np.minimum(h, _BIG)
         self._bounds_dirty = True
 
+    def adopt_unconstrained(self, z: np.ndarray, U: np.ndarray) -> None:
+        """Leave the state :meth:`solve` leaves after the unconstrained optimum ``z``.
+
+        For a caller that evaluates the unconstrained law itself and checks the
+        constraints on its own (the DMC's classic gain): the warm start of the next OSQP
+        call and the plan kept for a fallback become those of the condensed decision
+        ``z`` (``(nz,)``, zero slacks and duals) with input plan ``U`` (``(Nc, m)``), as
+        if :meth:`solve` had returned them with ``unconstrained_first``.
+        """
+        if self._sparse:
+            raise ValueError("adopt_unconstrained() needs the condensed form")
+        nz = self._nz
+        if self._ws_mode == "shift":
+            xb = self._xbuf
+            xb[:nz] = z
+            xb[nz : self._nv] = 0.0
+            self._ws_x = xb[self._xshift]
+            self._ws_y = self._zero_duals()
+        elif self._ws_mode == "previous":
+            x = np.zeros(self._nv)
+            x[:nz] = z
+            self._ws_x, self._ws_y = x, self._zero_duals()
+        self._plan = U
+        self._plan_age = 0
+        self._u_last = U[0]
+
+    def _zero_duals(self) -> np.ndarray:
+        y = self.__dict__.get("_y_zero")
+        if y is None or y.size != self._nA:
+            y = self._y_zero = np.zeros(self._nA)  # shared: nothing writes into duals
+        return y
+
     def gain_unconstrained(self) -> UnconstrainedGain:
         """First-move gain of the unconstrained problem from the condensed normal equations.
 
@@ -2062,10 +2094,7 @@ class LinearMPC:
             return None
         x = np.zeros(self._nv)
         x[:nz] = z
-        y = self.__dict__.get("_y_zero")
-        if y is None or y.size != self._nA:
-            y = self._y_zero = np.zeros(self._nA)  # shared: nothing writes into duals
-        return x, y, obj
+        return x, self._zero_duals(), obj
 
     def _predictions(self, x: np.ndarray, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``th``)."""
