@@ -11,12 +11,14 @@ Run (not a test; numbers go in the closing notes)::
     python benchmarks/bench_tuners.py all
 
 ``speed`` evaluates the same points on ``--env`` (default the 004 Fuzzy-PID id, one
-scenario seed) with the serial backend and with a ``--workers`` process pool (the pool
-start-up is timed separately). ``persistence`` times what storing costs per finished
-evaluation (one Optuna trial) and per generation (the algorithm checkpoint) on a
-problem whose evaluation is free (ZDT1 with 7 variables, like 004's DMC; Optuna writes
-one row per parameter, so the cost grows with their number), for in-memory Optuna and
-an SQLite file.
+scenario seed) with a pool of one worker process and with a pool of ``--workers``,
+in turn on the same chunks of points (``--rounds``, order swapped every round), and
+reports the speed-up over all rounds and per round (the pool start-up is timed
+separately; both pools limit BLAS to one thread per worker). ``persistence`` times
+what storing costs per finished evaluation (one Optuna trial) and per generation (the
+algorithm checkpoint) on a problem whose evaluation is free (ZDT1 with 7 variables,
+like 004's DMC; Optuna writes one row per parameter, so the cost grows with their
+number), for in-memory Optuna and an SQLite file.
 ``convergence`` compares hypervolume (reference point 1.1, 1.1) and IGD at equal
 evaluations (pop 40 x 100 generations) over seeds, including a shifted ZDT1 whose
 Pareto set is not on the lower bound. ``tune004`` tunes ``--env004`` (default the DMC
@@ -57,42 +59,53 @@ def _load() -> str:
 
 
 # ---------------------------------------------------------------------- speed
-def bench_speed(env_id: str, n: int, workers: int) -> dict:
-    from tuners.backends import Evaluations, ProcessBackend, SerialBackend
+def bench_speed(env_id: str, n: int, workers: int, rounds: int = 4) -> dict:
+    from tuners.backends import Evaluations, ProcessBackend
     from tuners.problem import EnvTuningProblem
 
     prob = EnvTuningProblem(env_id, seeds=[0])
     rng = np.random.default_rng(0)
     X = np.vstack([prob.default_x(), rng.uniform(-1, 1, (n - 1, prob.n_var))])
-    t0 = time.perf_counter()
-    Evaluations(SerialBackend()).evaluate(prob, X)
-    t_serial = time.perf_counter() - t0
-    be = ProcessBackend(workers=workers)
+    one, many = ProcessBackend(workers=1), ProcessBackend(workers=workers)
     try:
         t0 = time.perf_counter()
-        warm = rng.uniform(-1, 1, (4 * workers, prob.n_var))  # every worker imports + builds
-        Evaluations(be).evaluate(prob, warm)  # spawns the pool (imports in each worker)
+        for be in (one, many):  # every worker imports, builds its env, runs a few
+            Evaluations(be).evaluate(prob, rng.uniform(-1, 1, (4 * workers, prob.n_var)))
         t_spawn = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        Evaluations(be).evaluate(prob, X)
-        t_proc = time.perf_counter() - t0
+        # the two pools in turn on the same chunks, the order swapped every round: this
+        # machine's speed drifts within minutes, a ratio per round is what holds
+        t1 = tn = 0.0
+        ratios = []
+        for r, chunk in enumerate(np.array_split(X, rounds)):
+            times = {}
+            for be in (one, many) if r % 2 == 0 else (many, one):
+                t0 = time.perf_counter()
+                Evaluations(be).evaluate(prob, chunk)
+                times[be is one] = time.perf_counter() - t0
+            t1 += times[True]
+            tn += times[False]
+            ratios.append(times[True] / times[False])
     finally:
-        be.close()
+        one.close()
+        many.close()
     out = {
         "env": env_id,
         "evaluations": n,
         "workers": workers,
         "cores": os.cpu_count(),
-        "serial_evals_per_s": n / t_serial,
-        "processes_evals_per_s": n / t_proc,
-        "speedup": t_serial / t_proc,
+        "one_worker_evals_per_s": n / t1,
+        "processes_evals_per_s": n / tn,
+        "speedup": t1 / tn,
+        "speedup_per_round": ratios,
         "pool_startup_s": t_spawn,
         "loadavg": _load(),
     }
     print(
-        f"[speed] {env_id}: {n} evaluations, serial {out['serial_evals_per_s']:.2f}/s, "
-        f"{workers} processes {out['processes_evals_per_s']:.2f}/s -> speed-up "
-        f"{out['speedup']:.2f}x (pool start-up {t_spawn:.1f} s; load {out['loadavg']})"
+        f"[speed] {env_id}: {n} evaluations in {rounds} rounds, 1 worker process "
+        f"{out['one_worker_evals_per_s']:.2f}/s, {workers} processes "
+        f"{out['processes_evals_per_s']:.2f}/s -> speed-up {out['speedup']:.2f}x (rounds "
+        f"{min(ratios):.2f}-{max(ratios):.2f}; pool start-up {t_spawn:.1f} s; "
+        f"load {out['loadavg']})"
     )
     return out
 
@@ -322,6 +335,7 @@ def main() -> None:
     )
     ap.add_argument("--env", default="TrainEnvs/Urban004FuzzyPID-v0")
     ap.add_argument("--n", type=int, default=12, help="evaluations of the speed benchmark")
+    ap.add_argument("--rounds", type=int, default=4, help="alternating rounds of `speed`")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2)
     ap.add_argument("--n-var", type=int, default=7, help="variables of the persistence problem")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
@@ -335,7 +349,7 @@ def main() -> None:
     args = ap.parse_args()
     res: dict = {}
     if args.part in ("speed", "all"):
-        res["speed"] = bench_speed(args.env, args.n, args.workers)
+        res["speed"] = bench_speed(args.env, args.n, args.workers, args.rounds)
     if args.part in ("persistence", "all"):
         res["persistence"] = bench_persistence(20, 10, args.n_var)
     if args.part in ("convergence", "all"):
