@@ -625,3 +625,29 @@ def test_env_tasks_reuse_one_env_per_worker_with_fresh_env_results():
     with ProcessBackend(workers=1) as backend:  # spawned worker: its own cache
         (out,) = backend.run([CacheProbeTask(tasks)])
     assert out["F"] == [2.0] and out["metrics"]["outs"] == fresh
+
+
+def test_resume_by_other_code_is_refused_unless_allowed(tmp_path, monkeypatch):
+    """A study records the code fingerprint; resuming it with other code is refused (its
+    cache would answer for the new code), allowed on request (and recorded), and
+    '{code}' in a study name gives one study per code version."""
+    import optuna
+
+    import tuners.run as run
+    from tuners.storage import CODE_HISTORY_ATTR, CONFIG_ATTR, code_fingerprint
+
+    db = f"sqlite:///{tmp_path / 'runs.db'}"
+    problem = PymooTaskProblem(get_problem("zdt1", n_var=4))
+    kw = dict(pop=4, iters=1, backend="serial", storage=db, seed=1)
+    first = run.tune(problem, "mowoa", study="z", **kw)
+    st = optuna.load_study(study_name="z", storage=db)
+    assert st.user_attrs[CONFIG_ATTR]["code"] == code_fingerprint()
+    monkeypatch.setattr(run, "code_fingerprint", lambda: "feedfacecafebeef")
+    with pytest.raises(ValueError, match="other code.*allow_code_change"):
+        run.tune(problem, "mowoa", study="z", resume=True, **kw)
+    again = run.tune(problem, "mowoa", study="z", resume=True, allow_code_change=True, **kw)
+    assert again.stats.run == 0 and len(again.evaluations) == len(first.evaluations)
+    st = optuna.load_study(study_name="z", storage=db)
+    assert st.user_attrs[CODE_HISTORY_ATTR] == [code_fingerprint(), "feedfacecafebeef"]
+    per_code = run.tune(problem, "mowoa", study="z-{code}", resume=True, **kw)
+    assert per_code.study_name == "z-feedface" and per_code.stats.run > 0

@@ -65,8 +65,19 @@ def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
     p.add_argument(
         "--storage", default=DEFAULT_STORAGE, help=f"Optuna storage URL (default {DEFAULT_STORAGE})"
     )
-    p.add_argument("--study", default=None, help="study name (default <env>-<algo>-s<seed>)")
+    p.add_argument(
+        "--study",
+        default=None,
+        help="study name (default <env>-<algo>-s<seed>; '{code}' stands for the code "
+        "fingerprint: one study per code version)",
+    )
     p.add_argument("--resume", action="store_true", help="continue the (killed) study")
+    p.add_argument(
+        "--allow-code-change",
+        action="store_true",
+        help="resume a study that other code started (refused by default: its cached "
+        "evaluations would answer for this code)",
+    )
     p.add_argument(
         "--seeds", nargs="+", default=["0"], help="scenario seeds per evaluation: 0 1 2, 0-4"
     )
@@ -181,6 +192,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         storage=args.storage,
         study=args.study,
         resume=args.resume,
+        allow_code_change=args.allow_code_change,
         seeds=parse_seeds(args.seeds) or [0],
         objectives=args.objectives,
         target_weights=args.target_weights,
@@ -224,7 +236,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def cmd_show(args: argparse.Namespace) -> int:
     from tuners.run import load_result, show
+    from tuners.storage import code_fingerprint
 
+    args.study = args.study.replace("{code}", code_fingerprint()[:8])
     try:
         print(show(args.study, args.storage, max_rows=args.max_rows))
     except KeyError as exc:

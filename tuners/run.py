@@ -7,7 +7,11 @@ A run = a :class:`tuners.problem.EnvTuningProblem` (or any
 one batch of evaluations; every finished evaluation is written to the study at once and
 the algorithm is checkpointed after every generation, so ``resume=True`` continues a
 killed run without re-running any finished evaluation and ends with exactly the
-uninterrupted run's result (same seed).
+uninterrupted run's result (same seed). A run records the fingerprint of the code that
+evaluates (:func:`tuners.storage.code_fingerprint`); resuming it with other code is
+refused (its cached evaluations would answer for the new code) unless
+``allow_code_change=True``. ``{code}`` in a study name stands for that fingerprint's
+first 8 digits: a study per code version, resumable as long as the code is the same.
 
 Budget: ``iters`` is pymoo's number of generations *including* the initial one, so a
 run makes at most ``pop × iters`` evaluations (fewer distinct ones: repeated points are
@@ -56,6 +60,7 @@ from tuners.storage import (
     CONFIG_ATTR,
     StudyStore,
     checkpoint_info,
+    code_fingerprint,
     evaluations_frame,
     load_study,
 )
@@ -425,6 +430,7 @@ def tune(
     progress: bool = False,
     callback: Callback | None = None,
     on_evaluation: Callable[[str, dict[str, Any], int | None], None] | None = None,
+    allow_code_change: bool = False,
 ) -> TuneResult:
     """Tune the controller of ``env_id`` (or optimise any TaskProblem); see module doc.
 
@@ -454,6 +460,8 @@ def tune(
             under the target weights, normalised by the first generation's range).
         callback: pymoo callback called after every generation.
         on_evaluation: called with (key, outcome, generation) after each new evaluation.
+        allow_code_change: resume a study that other code started (its evaluations and
+            cache are kept as they are; the code fingerprints are recorded).
     """
     t_start = time.perf_counter()
     if normalization not in NORMALIZATIONS:
@@ -486,7 +494,10 @@ def tune(
             f"target_weights needs {m} values ({problem.obj_names}), got {target_weights}"
         )
     weights = list(np.full(m, 1.0 / m) if target_weights is None else target_weights)
-    study_name = study or f"{str(env_name).split('/')[-1]}-{algo}-s{seed}"
+    code = code_fingerprint()
+    study_name = (study or f"{str(env_name).split('/')[-1]}-{algo}-s{seed}").replace(
+        "{code}", code[:8]
+    )
     initial_X = None
     default_key = None
     if include_defaults and hasattr(problem, "default_x"):
@@ -510,8 +521,10 @@ def tune(
         "fingerprint": problem.fingerprint_hash(),
         "problem": problem.fingerprint(),
         "default_key": default_key,
+        "code": code,
     }
-    store = StudyStore(storage, study_name, problem, run_config, resume=resume)
+    checks = ("fingerprint", "algo", "pop", "seed") + (() if allow_code_change else ("code",))
+    store = StudyStore(storage, study_name, problem, run_config, resume=resume, check_keys=checks)
     cache = store.load_cache() if store.resumed else {}
     be = make_backend(
         backend, workers, address=dask_address, client=dask_client, max_retries=max_retries

@@ -55,9 +55,44 @@ from tuners.problem import TaskProblem
 CONFIG_ATTR = "tuner_config"
 TRIAL_ATTR = "tuner"  # one packed user attr per trial (each attr is a DB row: ~2 ms)
 CHECKPOINT_META = "tuner:checkpoint"
+CODE_HISTORY_ATTR = "tuner_code_history"  # code fingerprints of a run resumed across versions
 CHUNK_CHARS = 60_000  # below MySQL's TEXT limit
 #: algorithm attributes that are not pickled into a checkpoint
 DETACHED = ("problem", "callback", "display", "history")
+#: packages whose code and data decide what an evaluation returns
+CODE_PACKAGES = ("train_envs", "tuners")
+_CODE_FP: str | None = None
+
+
+def code_fingerprint() -> str:
+    """16 hex digits of SHA-256 over the source and data files of :data:`CODE_PACKAGES`.
+
+    Stored with every run (``run_config["code"]``): a study resumed by other code would
+    mix evaluations made by two versions of the controllers or plants (and answer new
+    points from a cache of old ones), so :func:`tuners.run.tune` refuses that unless
+    told otherwise.  Computed once per process (~20 ms).
+    """
+    global _CODE_FP
+    if _CODE_FP is None:
+        import importlib.util
+        from pathlib import Path
+
+        h = hashlib.sha256()
+        for pkg in CODE_PACKAGES:
+            spec = importlib.util.find_spec(pkg)
+            if spec is None or not spec.submodule_search_locations:
+                continue
+            root = Path(next(iter(spec.submodule_search_locations)))
+            files = sorted(
+                f
+                for f in root.rglob("*")
+                if f.is_file() and f.suffix in (".py", ".json", ".csv", ".yml", ".yaml")
+            )
+            for f in files:
+                h.update(f"{pkg}/{f.relative_to(root).as_posix()}\0".encode())
+                h.update(f.read_bytes())
+        _CODE_FP = h.hexdigest()[:16]
+    return _CODE_FP
 
 __all__ = [
     "StudyExistsError",
@@ -152,10 +187,23 @@ class StudyStore:
                     for k in check_keys
                     if stored.get(k) != self.run_config.get(k)
                 }
+                if "code" in diff:
+                    old_code, new_code = diff["code"]
+                    raise ValueError(
+                        f"cannot resume study {study_name!r}: it was run by other code (code "
+                        f"fingerprint stored {old_code}, now {new_code}), so its evaluations "
+                        "and cache do not answer for this code; use another study name "
+                        "('{code}' in the name gives one per code version) or pass "
+                        "allow_code_change=True (--allow-code-change) to continue anyway"
+                    )
                 if diff:
                     raise ValueError(
                         f"cannot resume study {study_name!r}: settings differ (stored, now): {diff}"
                     )
+                now = self.run_config.get("code")
+                if now is not None and stored.get("code") != now:  # allowed: record it
+                    seen = list(study.user_attrs.get(CODE_HISTORY_ATTR) or [stored.get("code")])
+                    study.set_user_attr(CODE_HISTORY_ATTR, [*seen, now])
             else:
                 study.set_user_attr(CONFIG_ATTR, self.run_config)
             self.resumed = stored is not None

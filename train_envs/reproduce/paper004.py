@@ -16,7 +16,8 @@ Fuzzy-PID beside 004's published changes (−5.9 %, −39.6 %, −33.2 %, −12.
 Differences to expect: 004's line and vehicle are unpublished (ours are assumed, see
 :func:`train_envs.scenarios.paper004_urban`), and 004's Fuzzy-PID is untuned while ours
 is a reasonably tuned baseline. Runs are stored in an SQLite study
-(``out/reproduce/paper004.db``) and resumed, so a killed reproduction loses nothing.
+(``out/reproduce/paper004.db``, one study per code version) and resumed, so a killed
+reproduction loses nothing and a changed code starts afresh.
 """
 
 from __future__ import annotations
@@ -53,7 +54,9 @@ def _tune(algo: str, pop: int, iters: int, seeds: Sequence[int], storage: str, s
         pop,
         iters,
         storage=storage,
-        study=f"paper004-{algo}-{pop}x{iters}-s{seed}",
+        # one study per code version: a table is never answered from evaluations that
+        # older code made
+        study=f"paper004-{algo}-{pop}x{iters}-s{seed}-{{code}}",
         resume=True,
         seeds=seeds,
         config=CONFIG,
