@@ -212,7 +212,9 @@ class TrainTuningEnv(gym.Env):
         deliberately keeps across episodes that depend on the parameters it ran with:
         the RSMPC / tube MPC keep their QPs, built with the weights of the episode that
         first needed them and updated in place afterwards, which agrees with a fresh
-        build only to rounding. After this call the env is as good as newly made: an
+        build only to rounding. Controllers that declare ``keeps_parameter_state =
+        False`` (the DMC: what it keeps does not depend on its tunables) are kept as they
+        are. After this call the env is as good as newly made: an
         evaluation on it equals one on a fresh env bit for bit (what
         :func:`~train_envs.envs.evaluate` relies on when it reuses envs). Returns whether
         it rebuilt anything; takes effect at the next ``reset``.
