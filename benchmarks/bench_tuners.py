@@ -206,7 +206,7 @@ def bench_tune004(env_id: str, pop: int, iters: int, workers: int, seeds, holdou
     from tuners.run import tune
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = f"bench-{env_id.split('/')[-1]}-mowoa-{pop}x{iters}-tol"
+    study = f"bench-{env_id.split('/')[-1]}-mowoa-{pop}x{iters}-tol-{{code}}"
     t0 = time.perf_counter()
     r = tune(
         env_id,
@@ -243,7 +243,7 @@ def bench_tune004(env_id: str, pop: int, iters: int, workers: int, seeds, holdou
         "tchebycheff_selected": float(s["tchebycheff"]),
         "objective_change_pct": change,
         "storage": db,
-        "study": study,
+        "study": r.study_name,
         "tolerances": TOLERANCES,
         "constraints": CONSTRAINTS,
     }
@@ -286,7 +286,7 @@ def bench_compare004(env_id: str, pop: int, iters: int, workers: int, seeds, tra
                 iters,
                 workers=workers,
                 storage=db,
-                study=f"compare004-{algo}-{pop}x{iters}-s{s}",
+                study=f"compare004-{algo}-{pop}x{iters}-s{s}-{{code}}",
                 resume=True,
                 seeds=train_seeds,
                 config=DISTURBANCE,

@@ -45,7 +45,8 @@ ENVS = ("TrainEnvs/Stopping001-v0", "TrainEnvs/Urban004-v0")
 #: 004's disturbed runs (as train_envs.reproduce.paper004.CONFIG): the same for all drivers
 CONFIG = {"disturbance": {"mass_factor_range": [0.9, 1.15], "random_bound_mps2": 0.03}}
 PAPER004_DB = "sqlite:///out/reproduce/paper004.db"
-PAPER004_STUDY = "paper004-mowoa-16x8-s0"
+#: the study `train-envs reproduce paper004` writes (one per code version, see tuners.run)
+PAPER004_STUDY = "paper004-mowoa-16x8-s0-{code}"
 #: metric column → (label, higher is better)
 METRICS = {
     "E_p_m": ("stop error E_p [m]", False),
@@ -158,12 +159,14 @@ def mowoa_params(
     if env_id == "TrainEnvs/Urban004-v0":
         from agents.evaluation import load_params
         from train_envs.reproduce import paper004
+        from tuners.storage import code_fingerprint
 
-        if _study_exists(PAPER004_DB, PAPER004_STUDY):
+        reproduced = PAPER004_STUDY.replace("{code}", code_fingerprint()[:8])
+        if _study_exists(PAPER004_DB, reproduced):
             # load_result(...).selected_params needs the problem; load_params rebuilds it
-            _, params = load_params(f"{PAPER004_DB}:{PAPER004_STUDY}")
-            return params, f"study {PAPER004_STUDY} in {PAPER004_DB} (16 × 8, seeds 0, 1)"
-        study = "urban004-mowoa-16x8-s0"
+            _, params = load_params(f"{PAPER004_DB}:{reproduced}")
+            return params, f"study {reproduced} in {PAPER004_DB} (16 × 8, seeds 0, 1)"
+        study = "urban004-mowoa-16x8-s0-{code}"
         t0 = time.perf_counter()
         res = tune(
             env_id,
@@ -180,9 +183,10 @@ def mowoa_params(
             seed=0,
             workers=workers,
         )
-        src = f"study {study} in {storage} (16 × 8, seeds 0, 1, {time.perf_counter() - t0:.0f} s)"
+        wall = time.perf_counter() - t0
+        src = f"study {res.study_name} in {storage} (16 × 8, seeds 0, 1, {wall:.0f} s)"
     else:
-        study = f"{short(env_id).lower()}-mowoa-{pop}x{iters}-s0"
+        study = f"{short(env_id).lower()}-mowoa-{pop}x{iters}-s0-{{code}}"
         t0 = time.perf_counter()
         res = tune(
             env_id,
@@ -199,7 +203,7 @@ def mowoa_params(
             workers=workers,
         )
         src = (
-            f"study {study} in {storage} ({pop} × {iters}, seeds 0, 1, objectives "
+            f"study {res.study_name} in {storage} ({pop} × {iters}, seeds 0, 1, objectives "
             f"{', '.join(res.objectives)}, {time.perf_counter() - t0:.0f} s)"
         )
     if res.selected_params is None:
