@@ -469,7 +469,10 @@ class MultiCarMPC(_TrainMPCBase):
     [s_ref, 0, …, v_ref, 0, …] (000 eq. 10). Constraints: hard per-car force box and
     rate (000 eq. 14–15), soft 0 ≤ x_1 ≤ x_stop (11), |δ_j| ≤ l_safe (12),
     0 ≤ v_1 ≤ v_max(s) (13). With ``terminal=True`` (SEMPC) the augmented Riccati
-    terminal cost is added (000 §III-B); ``terminal=False`` is 000's plain MPC.
+    terminal cost is added (000 §III-B); ``terminal=False`` is 000's plain MPC. Each QP
+    first tries the exact unconstrained optimum (``unconstrained_first`` of
+    :class:`LinearMPC`): on 000's single section no row binds at 98 % of the steps, and
+    OSQP runs for the rest.
 
     Tunable: q_s (lead position), q_v (lead speed), q_dx (coupler deformations),
     q_dv (relative speeds), r_du (force increments, per kN²). Paper 000's own weights
@@ -597,6 +600,7 @@ class MultiCarMPC(_TrainMPCBase):
             y_min=y_min,
             y_max=y_max,
             soft_penalty=self.soft_penalty,
+            unconstrained_first=True,
         )
         self._weights_key = tuple(sorted(self._params.items()))
         self._yref = np.zeros((self.Np, 2 * n))
