@@ -133,6 +133,7 @@ class _TrainMPCBase(Controller):
         relinearise_mps: float,
         soft_penalty: float,
         observer_gain: float,
+        unconstrained_first: bool = True,
         **params: float,
     ) -> None:
         if feedforward not in ("full", "gradient", "none"):
@@ -147,6 +148,8 @@ class _TrainMPCBase(Controller):
         self.observer_gain = float(observer_gain)
         self.relinearise_mps = float(relinearise_mps)
         self.soft_penalty = float(soft_penalty)
+        #: try the exact unconstrained optimum before OSQP (see LinearMPC)
+        self.unconstrained_first = bool(unconstrained_first)
         self._mpc: LinearMPC | None = None
         self._weights_key: tuple | None = None
         super().__init__(**params)
@@ -221,6 +224,7 @@ class PointMassMPC(_TrainMPCBase):
         relinearise_mps: float = 5.0,
         soft_penalty: float = 1e3,
         observer_gain: float = 0.3,
+        unconstrained_first: bool = True,
         **params: float,
     ) -> None:
         self.jerk_max = float(jerk_max)
@@ -231,6 +235,7 @@ class PointMassMPC(_TrainMPCBase):
             relinearise_mps=relinearise_mps,
             soft_penalty=soft_penalty,
             observer_gain=observer_gain,
+            unconstrained_first=unconstrained_first,
             **params,
         )
 
@@ -320,6 +325,7 @@ class PointMassMPC(_TrainMPCBase):
             y_min=[-big, 0.0],
             y_max=y_max,
             soft_penalty=self.soft_penalty,
+            unconstrained_first=self.unconstrained_first,
         )
         self._weights_key = tuple(sorted(self._params.items()))
         self._pending: deque[float] = deque([0.0] * self._l, maxlen=max(self._l, 1))
@@ -502,6 +508,7 @@ class MultiCarMPC(_TrainMPCBase):
         relinearise_mps: float = 5.0,
         soft_penalty: float = 1e3,
         observer_gain: float = 0.3,
+        unconstrained_first: bool = True,
         **params: float,
     ) -> None:
         super().__init__(
@@ -511,6 +518,7 @@ class MultiCarMPC(_TrainMPCBase):
             relinearise_mps=relinearise_mps,
             soft_penalty=soft_penalty,
             observer_gain=observer_gain,
+            unconstrained_first=unconstrained_first,
             **params,
         )
         if not terminal:
@@ -600,7 +608,7 @@ class MultiCarMPC(_TrainMPCBase):
             y_min=y_min,
             y_max=y_max,
             soft_penalty=self.soft_penalty,
-            unconstrained_first=True,
+            unconstrained_first=self.unconstrained_first,
         )
         self._weights_key = tuple(sorted(self._params.items()))
         self._yref = np.zeros((self.Np, 2 * n))
