@@ -345,6 +345,27 @@ def test_reused_env_evaluates_like_a_fresh_env_bitwise(env_id, config):
     assert len(ENV_CACHE) == 0
 
 
+@pytest.mark.parametrize(
+    "env_id, kept", [("TrainEnvs/Urban004-v0", True), ("TrainEnvs/Stopping001-v0", False)]
+)
+def test_reused_env_keeps_a_controller_only_if_its_state_is_parameter_free(env_id, kept):
+    """After an episode with other parameters, a reused env keeps its DMC (what the DMC
+    keeps does not depend on its tunables) but rebuilds the RSMPC (its QPs do)."""
+    from train_envs.envs.evaluation import EnvCache
+
+    cache = EnvCache(maxsize=1)
+    cfg = {"max_episode_steps": 3}
+    env = cache.acquire(env_id, cfg)
+    ctrl = env.unwrapped.controller
+    evaluate_params = _non_default_params(env_id, 0.3)
+    env.reset(seed=0)
+    env.step(params_to_action(env, evaluate_params))
+    cache.release(env_id, cfg, env)
+    again = cache.acquire(env_id, cfg)
+    assert again is env and (again.unwrapped.controller is ctrl) is kept
+    cache.clear()
+
+
 def test_env_cache_is_bounded_and_lends_each_env_once():
     from train_envs.envs.evaluation import EnvCache
 
