@@ -1451,6 +1451,9 @@ class LinearMPC:
         self._ur_dirty = False
         self._ws_x: np.ndarray | None = None
         self._ws_y: np.ndarray | None = None
+        #: the last solution (primal, dual; dual None: condensed z with zero slacks and
+        #: duals), turned into the next warm start only when OSQP runs (_warm_start)
+        self._ws_src: tuple[np.ndarray, np.ndarray | None] | None = None
         self._xbuf = np.zeros(self._nv + 1)
         self._plan: np.ndarray | None = None
         self._plan_age = 0
@@ -1659,20 +1662,36 @@ class LinearMPC:
         """
         if self._sparse:
             raise ValueError("adopt_unconstrained() needs the condensed form")
-        nz = self._nz
-        if self._ws_mode == "shift":
-            xb = self._xbuf
-            xb[:nz] = z
-            xb[nz : self._nv] = 0.0
-            self._ws_x = xb[self._xshift]
-            self._ws_y = self._zero_duals()
-        elif self._ws_mode == "previous":
-            x = np.zeros(self._nv)
-            x[:nz] = z
-            self._ws_x, self._ws_y = x, self._zero_duals()
+        self._ws_src = (z, None)
         self._plan = U
         self._plan_age = 0
         self._u_last = U[0]
+
+    def _warm_start(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The warm start of the next OSQP call, formed from the last solution on demand
+        (shifted by one stage or as it is, per ``warm_start``): most solves of the MPCs
+        that try the unconstrained optimum first never reach OSQP."""
+        src = self._ws_src
+        if src is not None:
+            self._ws_src = None
+            x, y = src
+            mode = self._ws_mode
+            if y is None:  # condensed decision z, zero slacks and duals
+                xb = self._xbuf
+                xb[: self._nz] = x
+                xb[self._nz : self._nv] = 0.0
+                if mode == "shift":
+                    self._ws_x, self._ws_y = xb[self._xshift], self._zero_duals()
+                elif mode == "previous":
+                    self._ws_x, self._ws_y = xb[: self._nv].copy(), self._zero_duals()
+            elif mode == "shift":
+                xb = self._xbuf
+                xb[: self._nv] = x
+                self._ws_x = xb[self._xshift]
+                self._ws_y = y[self._yshift]
+            elif mode == "previous":
+                self._ws_x, self._ws_y = x, y
+        return self._ws_x, self._ws_y
 
     def _zero_duals(self) -> np.ndarray:
         y = self.__dict__.get("_y_zero")
@@ -1874,14 +1893,14 @@ class LinearMPC:
         be = self._backend
         raw = be.raw
         try:
-            ws_x = self._ws_x
+            ws_x, ws_y = self._warm_start()
             if raw is not None and not be.polishing:
                 # compiled solver object, inlined: the wrapper costs more than small solves
                 rc = raw.update_data_vec(v[self._sl_q], self._l, self._u)
                 if rc:
                     return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
                 if ws_x is not None:
-                    raw.warm_start(ws_x, self._ws_y)
+                    raw.warm_start(ws_x, ws_y)
                 raw.solve()
                 sol = raw.solution
                 x = sol.x
@@ -1898,7 +1917,7 @@ class LinearMPC:
                 if rc:
                     return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
                 if ws_x is not None:
-                    be.warm_start(ws_x, self._ws_y)
+                    be.warm_start(ws_x, ws_y)
                 x, y, stats = be.solve()
                 status_val, status, iters, solve_time, obj_val, _ = stats
             if status_val != _SOLVED and self._rescue_on:
@@ -1956,24 +1975,15 @@ class LinearMPC:
             return self._fallback(t_start, status, status_val, up, iters, solve_time)
         Lv = v[self._sl_L]
         cost = obj_val + float(np.dot(Lv, Lv))
-        ns = self._ns
-        if slack_max is not None:
-            pass
-        elif ns == 0:
-            slack_max = 0.0
-        elif ns <= 64:  # python max beats a ufunc call for short vectors
-            slack_max = max(0.0, max(x[self._oe :].tolist()))
-        else:
-            slack_max = max(0.0, float(x[self._oe :].max()))
-
-        # warm start for the next call: shifted primal and dual
-        if self._ws_mode == "shift":
-            xb = self._xbuf
-            xb[: self._nv] = x
-            self._ws_x = xb[self._xshift]
-            self._ws_y = y[self._yshift]
-        elif self._ws_mode == "previous":
-            self._ws_x, self._ws_y = x, y
+        if slack_max is None:
+            ns = self._ns
+            if ns == 0:
+                slack_max = 0.0
+            elif ns <= 64:  # python max beats a ufunc call for short vectors
+                slack_max = max(0.0, max(x[self._oe :].tolist()))
+            else:
+                slack_max = max(0.0, float(x[self._oe :].max()))
+        self._ws_src = (x, y)  # the next warm start, formed when OSQP runs next
         self._plan = U
         self._plan_age = 0
         self._u_last = u0
@@ -2262,11 +2272,12 @@ class LinearMPC:
         self._theta[self._slots["up"]] = up
         X, Y, slack_max, cost = self._evaluate_plan(z)
         # next warm start: shift the previous one again (never reuse a failed iterate)
-        if self._ws_x is not None:
+        ws_x, ws_y = self._warm_start()
+        if ws_x is not None:
             xb = self._xbuf
-            xb[: self._nv] = self._ws_x
+            xb[: self._nv] = ws_x
             self._ws_x = xb[self._xshift]
-            self._ws_y = self._ws_y[self._yshift]
+            self._ws_y = ws_y[self._yshift]
         self._u_last = u0
         return MPCSolution(
             u0=u0,
