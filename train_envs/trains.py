@@ -255,19 +255,12 @@ class TrainParams:
         back to :meth:`envelope_lists` only when the box is too tight.
         """
         F, P, MA, a, b, c = self._traction_consts
-        Fb, Pb, Ffr, MD = self._brake_consts
         hi = F
         if v_hi > 0.0 and P is not None:
             hi = min(hi, P / v_hi)
         if MA is not None:
             hi = min(hi, MA + ((a + b * v_lo + c * (v_lo * v_lo)) if v_lo > 0.0 else 0.0))
-        lo = Fb
-        if v_hi > 0.0 and Pb is not None:
-            lo = min(lo, Pb / v_hi)
-        lo += Ffr
-        if MD is not None:
-            lo = min(lo, MD)
-        return -lo, hi
+        return -self.max_brake_N(v_hi), hi
 
     def max_brake_N(self, v: float) -> float:
         """Braking envelope (positive number) = power-limited electric + friction [N]."""
