@@ -290,6 +290,55 @@ def test_unconstrained_first_with_pinned_inputs_is_exact():
     assert hits >= 5 and pinned_nonzero >= 2
 
 
+def test_unconstrained_cost_bounds_the_solve_and_equals_it_when_exact():
+    """``unconstrained_cost`` is a lower bound on ``solve``'s cost for the same data (every
+    row and slack penalty can only raise the optimum) and equals it bit for bit when the
+    solve is decided by the unconstrained shortcut (free and pinned inputs)."""
+    exact = below = 0
+    for seed in range(40):  # absolute-input form (delta_u=False), some inputs pinned
+        case = random_instance(seed)
+        inst = {**case["inst"], "delta_u": False}
+        if seed % 2:  # loose boxes: the shortcut decides many of these
+            for k in ("u_min", "u_max", "du_min", "du_max", "y_min", "y_max"):
+                if inst[k] is not None:
+                    inst[k] = 10.0 * inst[k]
+        data = {**case["data"], "y_max_override": None}
+        rng = np.random.default_rng(seed)
+        Nc, m = inst["Nc"], inst["B"].shape[1]
+        lo = np.tile(inst["u_min"], (Nc, 1))
+        hi = np.tile(inst["u_max"], (Nc, 1))
+        pin = rng.random((Nc, m)) < 0.3
+        val = np.where(rng.random((Nc, m)) < 0.5, 0.0, rng.uniform(-0.5, 0.5, (Nc, m)))
+        lo[pin] = hi[pin] = val[pin]
+        mpc = make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True)
+        mpc.set_base_bounds(u_min=lo, u_max=hi)
+        lb = mpc.unconstrained_cost(
+            data["x0"],
+            data["u_prev"],
+            data["y_ref"],
+            d=data["d"],
+            u_ref=data["u_ref"],
+            x_ref_N=data["x_ref_N"],
+        )
+        sol = solve(mpc, data)
+        assert lb is not None
+        if sol.fallback:  # pins that make the hard rows infeasible: no cost to compare
+            continue
+        if sol.status == "solved (unconstrained)":
+            exact += 1
+            assert lb == sol.cost
+        else:
+            below += 1
+            assert lb <= sol.cost + 1e-7 * max(1.0, abs(sol.cost)), (seed, lb, sol.cost)
+    assert exact >= 5 and below >= 5
+    # not available: shortcut off, sparse form
+    case = random_instance(0)
+    args = (case["data"]["x0"], case["data"]["u_prev"], case["data"]["y_ref"])
+    assert make_mpc(case["inst"]).unconstrained_cost(*args, d=case["data"]["d"]) is None
+    sparse = make_mpc(case["inst"], form="sparse", unconstrained_first=True)
+    assert sparse.unconstrained_cost(*args, d=case["data"]["d"]) is None
+
+
 @pytest.mark.parametrize("form", ["condensed", "sparse"])
 def test_default_settings_are_accurate_on_random_instances(form):
     """With the default OSQP tolerances the plan is still within 1e-3 of the optimum."""

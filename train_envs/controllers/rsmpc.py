@@ -48,9 +48,19 @@ the candidate solves are decided this way.  With exact costs the undisturbed run
 1 step at 300 of 372 triggers (β = 3); under paper 001's disturbance the counts are
 unchanged from the OSQP-only runs (README table).
 
+Screening.  A candidate ``M`` is first bounded from below by the cost of its
+unconstrained minimiser (held increments pinned; :meth:`LinearMPC.unconstrained_cost`):
+every constraint and slack penalty can only raise ``J^M``, so a bound above ``J^1``
+rejects ``M`` without setting bounds or solving -- exactly the decision the solve would
+give (when the minimiser is feasible the bound is the solve's cost, bit for bit).  On
+paper 001's undisturbed run this discards 40 % of the candidates (618 of 1518 over six
+episodes), most of the rejected holds; accepted candidates are solved in full (their
+feasibility and plan are needed).
+
 Info per step: ``triggered`` (bool), ``hold_steps`` (M of the current hold),
-``triggers`` (so far in the episode), ``qp_solves`` (this step), and the usual solver
-fields (summed over the QPs of a trigger, zero while holding).
+``triggers`` (so far in the episode), ``candidates`` (hold lengths examined this step),
+``qp_solves`` (those solved in full, the others were screened out), and the usual
+solver fields (summed over the QPs of a trigger, zero while holding).
 """
 
 from __future__ import annotations
@@ -134,6 +144,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
                 "hold_steps": self._hold_M,
                 "triggers": self._triggers,
                 "qp_solves": 0,
+                "candidates": 0,
                 "solve_time_s": 0.0,
                 "iterations": 0,
                 "fallback": False,
@@ -144,6 +155,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
         sols: dict[int, MPCSolution] = {1: self._solve(self._problem(1), data)}
         sol1 = sols[1]
         best = 1
+        screened = 0
         Mx = self.M_max
         # P^1 feasible: solved, no slack, terminal set kept (ΔU_f^1 ≠ ∅ in eq. 29)
         feasible1 = self._accept(sol1, math.inf) and self._relaxed == relaxed0
@@ -151,8 +163,14 @@ class RobustSelfTriggeredMPC(TubeMPC):
             J1 = sol1.cost
 
             def accept(M: int) -> bool:
+                nonlocal screened
+                prob = self._problem(M)
+                lb = self._lower_bound(prob, data)
+                if lb is not None and lb > J1:  # J^M >= lb > J^1: rejected, no solve
+                    screened += 1
+                    return False
                 r0 = self._relaxed
-                sols[M] = self._solve(self._problem(M), data)
+                sols[M] = self._solve(prob, data)
                 return self._relaxed == r0 and self._accept(sols[M], J1)
 
             if self.search == "linear":
@@ -203,6 +221,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
             "hold_steps": best,
             "triggers": self._triggers,
             "qp_solves": len(sols),
+            "candidates": len(sols) + screened,
             "solve_time_s": sum(s.solve_time_s for s in sols.values()),
             "iterations": sum(s.iterations for s in sols.values()),
             "fallback": sol.fallback,

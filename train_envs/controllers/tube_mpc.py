@@ -802,8 +802,8 @@ class TubeMPC(Controller):
             "u_prev": u_prev,
         }
 
-    def _solve(self, prob: _Problem, data: Mapping[str, Any]) -> MPCSolution:
-        """Solve one problem of the family from the stage data (001 eq. 11, 14 / 25–26)."""
+    def _buffers(self, prob: _Problem) -> tuple:
+        """Per-step index constants and work arrays of one problem (made on first use)."""
         Np, l = prob.Np, self._l  # noqa: E741
         bufs = prob.buffers
         if bufs is None or bufs[0] != l:
@@ -816,7 +816,23 @@ class TubeMPC(Controller):
                 np.empty(prob.H_N.shape[0]),
                 slice(l, l + Np),  # d_0 .. d_{Np-1}
             )
-        _, idx, y_ref, y_max, steps, b, d_idx = bufs
+        return bufs
+
+    def _lower_bound(self, prob: _Problem, data: Mapping[str, Any]) -> float | None:
+        """A lower bound on :meth:`_solve`'s cost for the same data, exact when the
+        problem's unconstrained optimum (held increments pinned) is feasible; None when
+        not available (:meth:`LinearMPC.unconstrained_cost`).  No bounds are set."""
+        _, idx, y_ref, _, _, _, d_idx = self._buffers(prob)
+        xs = data["xs"]
+        y_ref[:, :2] = xs[idx, :2]
+        return prob.mpc.unconstrained_cost(
+            data["xi0"], self._zero1, y_ref, d=data["D"][d_idx], x_ref_N=xs[self._l + prob.Np]
+        )
+
+    def _solve(self, prob: _Problem, data: Mapping[str, Any]) -> MPCSolution:
+        """Solve one problem of the family from the stage data (001 eq. 11, 14 / 25–26)."""
+        Np, l = prob.Np, self._l  # noqa: E741
+        _, idx, y_ref, y_max, steps, b, d_idx = self._buffers(prob)
         xs, v_lim, s_o = data["xs"], data["v_lim"], data["s_o"]
         y_ref[:, :2] = xs[idx, :2]
         y_max[...] = prob.y_max
