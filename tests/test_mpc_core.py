@@ -257,24 +257,33 @@ def test_unconstrained_first_is_exact_and_falls_back_to_osqp():
     assert shortcut >= 5 and osqp_runs >= 5
 
 
+def pinned_instance(seed: int, loose: bool, p_pin: float) -> tuple:
+    """A random instance in absolute-input form with a share ``p_pin`` of its inputs
+    pinned (equal bounds, at zero or a random value); ``loose``: boxes 10x wider.
+    Returns ``(inst, data, lo, hi, pin, val)``."""
+    case = random_instance(seed)
+    inst = {**case["inst"], "delta_u": False}
+    if loose:
+        for k in ("u_min", "u_max", "du_min", "du_max", "y_min", "y_max"):
+            if inst[k] is not None:
+                inst[k] = 10.0 * inst[k]
+    data = {**case["data"], "y_max_override": None}
+    rng = np.random.default_rng(seed)
+    Nc, m = inst["Nc"], inst["B"].shape[1]
+    lo = np.tile(inst["u_min"], (Nc, 1))
+    hi = np.tile(inst["u_max"], (Nc, 1))
+    pin = rng.random((Nc, m)) < p_pin
+    val = np.where(rng.random((Nc, m)) < 0.5, 0.0, rng.uniform(-0.5, 0.5, (Nc, m)))
+    lo[pin] = hi[pin] = val[pin]
+    return inst, data, lo, hi, pin, val
+
+
 def test_unconstrained_first_with_pinned_inputs_is_exact():
     """Inputs fixed by equal per-stage bounds (a hold, move blocking) keep the shortcut
     exact: its plan and cost equal a tight OSQP solve of the same pinned problem."""
     hits = pinned_nonzero = 0
     for seed in range(1, 40, 2):  # absolute-input form (delta_u=False)
-        case = random_instance(seed)
-        inst = {**case["inst"], "delta_u": False}
-        for k in ("u_min", "u_max", "du_min", "du_max", "y_min", "y_max"):
-            if inst[k] is not None:
-                inst[k] = 10.0 * inst[k]
-        data = {**case["data"], "y_max_override": None}
-        rng = np.random.default_rng(seed)
-        Nc, m = inst["Nc"], inst["B"].shape[1]
-        lo = np.tile(inst["u_min"], (Nc, 1))
-        hi = np.tile(inst["u_max"], (Nc, 1))
-        pin = rng.random((Nc, m)) < 0.4
-        val = np.where(rng.random((Nc, m)) < 0.5, 0.0, rng.uniform(-0.5, 0.5, (Nc, m)))
-        lo[pin] = hi[pin] = val[pin]
+        inst, data, lo, hi, pin, val = pinned_instance(seed, loose=True, p_pin=0.4)
         fast = make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True)
         ref = make_mpc(inst, osqp_settings=TIGHT, form="condensed")
         for mpc in (fast, ref):
@@ -296,20 +305,8 @@ def test_unconstrained_cost_bounds_the_solve_and_equals_it_when_exact():
     solve is decided by the unconstrained shortcut (free and pinned inputs)."""
     exact = below = 0
     for seed in range(40):  # absolute-input form (delta_u=False), some inputs pinned
-        case = random_instance(seed)
-        inst = {**case["inst"], "delta_u": False}
-        if seed % 2:  # loose boxes: the shortcut decides many of these
-            for k in ("u_min", "u_max", "du_min", "du_max", "y_min", "y_max"):
-                if inst[k] is not None:
-                    inst[k] = 10.0 * inst[k]
-        data = {**case["data"], "y_max_override": None}
-        rng = np.random.default_rng(seed)
-        Nc, m = inst["Nc"], inst["B"].shape[1]
-        lo = np.tile(inst["u_min"], (Nc, 1))
-        hi = np.tile(inst["u_max"], (Nc, 1))
-        pin = rng.random((Nc, m)) < 0.3
-        val = np.where(rng.random((Nc, m)) < 0.5, 0.0, rng.uniform(-0.5, 0.5, (Nc, m)))
-        lo[pin] = hi[pin] = val[pin]
+        # odd seeds: loose boxes, where the shortcut decides many instances
+        inst, data, lo, hi, _, _ = pinned_instance(seed, loose=bool(seed % 2), p_pin=0.3)
         mpc = make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True)
         mpc.set_base_bounds(u_min=lo, u_max=hi)
         lb = mpc.unconstrained_cost(

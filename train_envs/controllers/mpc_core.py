@@ -1776,13 +1776,7 @@ class LinearMPC:
 
         # bounds -------------------------------------------------------------------
         override = y_min is not None or y_max is not None or h_y is not None or h_x is not None
-        relax = False
-        if self._has_du:
-            umin_l, umax_l = self._umin_l, self._umax_l
-            for i in range(self.m):
-                if upl[i] < umin_l[i] or upl[i] > umax_l[i]:
-                    relax = True
-                    break
+        relax = self._has_du and self._outside_box(upl)
         changed = False
         if override or relax:
             ok = self._set_bounds(up, relax, y_min, y_max, h_y, h_x)
@@ -1900,12 +1894,8 @@ class LinearMPC:
         tv = self._th_nb if M is self._M_nd else th
         if not math.isfinite(np.dot(tv, tv)):
             return None
-        if self._has_du:
-            upl = self._th_up.tolist()
-            umin_l, umax_l = self._umin_l, self._umax_l
-            for i in range(self.m):
-                if upl[i] < umin_l[i] or upl[i] > umax_l[i]:
-                    return None
+        if self._has_du and self._outside_box(self._th_up.tolist()):
+            return None
         v = self._v
         np.dot(M, tv, out=v)  # the full map, as solve() applies it: the same numbers
         hit = self._unc_minimiser(v[: self._nz], False, self._Lb0)
@@ -1913,6 +1903,15 @@ class LinearMPC:
             return None
         Lv = v[self._sl_L]
         return hit[1] + float(np.dot(Lv, Lv))
+
+    def _outside_box(self, upl: list[float]) -> bool:
+        """Whether the previous input lies outside the input box (with rate limits the
+        solve then relaxes the stage input bounds to the reachable box)."""
+        umin_l, umax_l = self._umin_l, self._umax_l
+        for i in range(self.m):
+            if upl[i] < umin_l[i] or upl[i] > umax_l[i]:
+                return True
+        return False
 
     def _load(
         self,
