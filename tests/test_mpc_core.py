@@ -189,16 +189,21 @@ def make_mpc(inst: dict, **extra) -> LinearMPC:
     return LinearMPC(inst["A"], inst["B"], inst["C"], **kw)
 
 
-def solve(mpc: LinearMPC, data: dict) -> MPCSolution:
-    return mpc.solve(
+def with_data(method, data: dict, **extra):
+    """Call ``solve`` (or ``unconstrained_cost``) with an instance's data."""
+    return method(
         data["x0"],
         data["u_prev"],
         data["y_ref"],
         d=data["d"],
         u_ref=data["u_ref"],
         x_ref_N=data["x_ref_N"],
-        y_max=data["y_max_override"],
+        **extra,
     )
+
+
+def solve(mpc: LinearMPC, data: dict) -> MPCSolution:
+    return with_data(mpc.solve, data, y_max=data["y_max_override"])
 
 
 # ---------------------------------------------------------------------------
@@ -309,14 +314,7 @@ def test_unconstrained_cost_bounds_the_solve_and_equals_it_when_exact():
         inst, data, lo, hi, _, _ = pinned_instance(seed, loose=bool(seed % 2), p_pin=0.3)
         mpc = make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True)
         mpc.set_base_bounds(u_min=lo, u_max=hi)
-        lb = mpc.unconstrained_cost(
-            data["x0"],
-            data["u_prev"],
-            data["y_ref"],
-            d=data["d"],
-            u_ref=data["u_ref"],
-            x_ref_N=data["x_ref_N"],
-        )
+        lb = with_data(mpc.unconstrained_cost, data)
         sol = solve(mpc, data)
         assert lb is not None
         if sol.fallback:  # pins that make the hard rows infeasible: no cost to compare
