@@ -51,8 +51,9 @@ unchanged from the OSQP-only runs (README table).
 Screening.  A candidate ``M`` is first bounded from below by the cost of its
 unconstrained minimiser (held increments pinned; :meth:`LinearMPC.unconstrained_cost`):
 every constraint and slack penalty can only raise ``J^M``, so a bound above ``J^1``
-rejects ``M`` without setting bounds or solving -- exactly the decision the solve would
-give (when the minimiser is feasible the bound is the solve's cost, bit for bit).  On
+rejects ``M`` without setting bounds or solving -- the decision exact costs give (when
+the minimiser is feasible the bound is the solve's cost, bit for bit; otherwise only
+OSQP's tolerance could have put its cost at or below ``J^1``).  On
 paper 001's undisturbed run this discards 40 % of the candidates (618 of 1518 over six
 episodes), most of the rejected holds; accepted candidates are solved in full (their
 feasibility and plan are needed).
