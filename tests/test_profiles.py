@@ -366,35 +366,6 @@ def test_interpolation_is_consistent_and_exact() -> None:
     np.testing.assert_allclose(np.diff(prof.t_s), dt, rtol=1e-9)
 
 
-def test_one_segment_fast_paths_give_the_same_numbers() -> None:
-    """``sv_at_t`` and the gradient table take a scalar path when every point lies in one
-    segment (a controller's preview); it must give the per-point path's numbers bit for
-    bit, inside a segment, before the first node, past the last, and with NaN."""
-    from train_envs.plants.lookup import gradient_table
-    from train_envs.scenarios import get_scenario
-
-    rng = np.random.default_rng(3)
-    prof = minimum_time_profile("CN_Songjiazhuang_Yizhuang", "CN_Beijing_Subway", ds=50.0)
-    tl = prof.t_s
-    grids = [np.array([-3.0, -1.0]), np.array([tl[-1] + 1.0, tl[-1] + 9.0]), np.array([np.nan])]
-    for _ in range(300):
-        j = int(rng.integers(0, tl.size - 1))
-        lo = rng.uniform(tl[j], tl[j + 1])
-        grids.append(np.linspace(lo, rng.uniform(lo, tl[j + 1]), int(rng.integers(1, 70))))
-        grids.append(np.sort(rng.uniform(tl[0] - 5.0, tl[-1] + 5.0, 30)))  # many segments
-    for x in grids:
-        fast, ref = prof.sv_at_t(x), prof._sv_at_t_segments(x)
-        np.testing.assert_array_equal(fast[0], ref[0])
-        np.testing.assert_array_equal(fast[1], ref[1])
-    table = gradient_table(get_scenario("paper001_stopping").track)
-    nodes = table.x[1:]
-    for x in [np.array([-50.0, -1.0]), np.array([np.nan, 3.0])] + [
-        np.linspace(a, a + rng.uniform(0.0, 30.0), 12)
-        for a in rng.uniform(nodes[0] - 40.0, nodes[-1] + 40.0, 300)
-    ]:
-        np.testing.assert_array_equal(table(x), table._segments(x))
-
-
 def test_to_dataframe_columns_and_values() -> None:
     prof = minimum_time_profile("paper004", "paper004_btype_metro")
     df = prof.to_dataframe()

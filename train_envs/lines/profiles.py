@@ -205,28 +205,8 @@ class SpeedProfile:
         return np.minimum(s, self.s_m[i + 1])
 
     def sv_at_t(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(s_at_t(t), v_at_t(t))`` for an array of times with one segment search.
-
-        When all the times fall in one segment (a controller's preview usually does),
-        that segment's constants are Python scalars: no index arrays, no gathers, the
-        same numbers bit for bit (same operations in the same order).
-        """
+        """``(s_at_t(t), v_at_t(t))`` for an array of times with one segment search."""
         x = np.asarray(t, float)
-        lo = float(x.min()) if x.size else math.nan
-        if lo == lo:  # (no NaN: those take the per-point path)
-            tl = self._t
-            last = len(tl) - 2
-            i = min(max(bisect_right(tl, lo) - 1, 0), last)
-            if i == min(max(bisect_right(tl, float(x.max())) - 1, 0), last):
-                t0 = tl[i]
-                tau = np.minimum(np.maximum(x - t0, 0.0), tl[i + 1] - t0)
-                v0, a = self._v[i], self._al[i]
-                s = np.minimum(self._s[i] + (v0 + 0.5 * a * tau) * tau, self._s[i + 1])
-                return s, np.maximum(v0 + a * tau, 0.0)
-        return self._sv_at_t_segments(x)
-
-    def _sv_at_t_segments(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`sv_at_t` with a segment index per time."""
         i = self._seg(x, self.t_s)
         t0 = self.t_s[i]
         tau = np.minimum(np.maximum(x - t0, 0.0), self.t_s[i + 1] - t0)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from bisect import bisect_right
 from collections.abc import Callable
 
@@ -49,16 +48,6 @@ class PiecewiseLinear:
             i = bisect_right(self._xl, s) - 1
             return self._y0l[i] + self._sl[i] * (s - self._xl[i])
         s = np.asarray(s, dtype=float)
-        lo = float(s.min()) if s.size else math.nan
-        if lo == lo:  # all points in one segment (no NaN): scalar constants, same numbers
-            xl = self._xl
-            i = bisect_right(xl, lo) - 1
-            if i == bisect_right(xl, float(s.max())) - 1:
-                return self._y0l[i] + self._sl[i] * (s - xl[i])
-        return self._segments(s)
-
-    def _segments(self, s: np.ndarray) -> np.ndarray:
-        """The array path with a segment index per point."""
         i = self.x.searchsorted(s, side="right") - 1
         return self.y0[i] + self.slope[i] * (s - self.x[i])
 
