@@ -2,7 +2,7 @@
 
 Run (not a test; numbers go in the closing notes)::
 
-    python benchmarks/bench_tuners.py speed         # evaluations/s serial vs processes
+    python benchmarks/bench_tuners.py speed         # evaluations/s, 1 vs N worker processes
     python benchmarks/bench_tuners.py persistence   # Optuna/SQLite cost per evaluation
     python benchmarks/bench_tuners.py convergence   # MOWOA/MOPSO vs NSGA-II on ZDT
     python benchmarks/bench_tuners.py tune004       # 20 x 10 tuning run on paper 004
