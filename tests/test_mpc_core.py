@@ -308,10 +308,10 @@ def test_unconstrained_cost_bounds_the_solve_and_equals_it_when_exact():
     """``unconstrained_cost`` is a lower bound on ``solve``'s cost for the same data (every
     row and slack penalty can only raise the optimum) and equals it bit for bit when the
     solve is decided by the unconstrained shortcut (free and pinned inputs)."""
-    exact = below = 0
+    exact = below = pinned_nonzero = 0
     for seed in range(40):  # absolute-input form (delta_u=False), some inputs pinned
         # odd seeds: loose boxes, where the shortcut decides many instances
-        inst, data, lo, hi, _, _ = pinned_instance(seed, loose=bool(seed % 2), p_pin=0.3)
+        inst, data, lo, hi, pin, val = pinned_instance(seed, loose=bool(seed % 2), p_pin=0.3)
         mpc = make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True)
         mpc.set_base_bounds(u_min=lo, u_max=hi)
         lb = with_data(mpc.unconstrained_cost, data)
@@ -322,10 +322,11 @@ def test_unconstrained_cost_bounds_the_solve_and_equals_it_when_exact():
         if sol.status == "solved (unconstrained)":
             exact += 1
             assert lb == sol.cost
+            pinned_nonzero += bool(np.any(val[pin] != 0.0))
         else:
             below += 1
             assert lb <= sol.cost + 1e-7 * max(1.0, abs(sol.cost)), (seed, lb, sol.cost)
-    assert exact >= 5 and below >= 5
+    assert exact >= 5 and below >= 5 and pinned_nonzero >= 2
     # not available: shortcut off, sparse form
     case = random_instance(0)
     args = (case["data"]["x0"], case["data"]["u_prev"], case["data"]["y_ref"])
