@@ -1880,7 +1880,9 @@ class LinearMPC:
         returns, bit for bit (same data map, same arithmetic).  It costs one
         matrix-vector product of the data map and one of the cached reduced inverse: no
         bounds, no feasibility check, no solver.  Use it to discard candidate problems
-        whose cost cannot beat a known value (self-triggered MPC's hold lengths).
+        whose cost cannot beat a known value (self-triggered MPC's hold lengths).  It
+        loads the call's data as :meth:`solve` does and leaves the warm start, the kept
+        plan and the last input untouched.
 
         Returns None when the bound is not available: ``unconstrained_first`` off, the
         sparse form, ``H`` (or its reduced block) not invertible to 1e-9, a previous input
