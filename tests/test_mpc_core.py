@@ -335,6 +335,59 @@ def test_unconstrained_cost_bounds_the_solve_and_equals_it_when_exact():
     assert sparse.unconstrained_cost(*args, d=case["data"]["d"]) is None
 
 
+def test_unconstrained_affine_maps_reproduce_the_shortcut():
+    """The explicit maps of the unconstrained optimum (free inputs and inputs pinned at
+    zero) give, for the data vector of a solve, the plan, predictions and cost of that
+    solve whenever the solve was decided by the shortcut; a pin at a non-zero value, the
+    sparse form and a solver without the shortcut have no maps."""
+    hits = nonzero_pins = 0
+    for seed in range(40):
+        inst, data, lo, hi, pin, val = pinned_instance(seed, loose=True, p_pin=0.3)
+        mpc = make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True)
+        mpc.set_base_bounds(u_min=lo, u_max=hi)
+        aff = mpc.unconstrained_affine()
+        if np.any(val[pin] != 0.0):
+            assert aff is None
+            nonzero_pins += 1
+            continue
+        assert aff is not None and aff.ntheta == mpc._theta.size
+        sol = solve(mpc, data)
+        if sol.status != "solved (unconstrained)":
+            continue
+        hits += 1
+        th = mpc._theta  # the data vector this solve loaded
+        assert th[0] == 1.0
+        np.testing.assert_allclose(aff.U @ th, sol.U.ravel(), rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(aff.X @ th, sol.X.ravel(), rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(aff.Y @ th, sol.Y.ravel(), rtol=1e-9, atol=1e-10)
+        r = aff.R @ th
+        assert float(r @ r) == pytest.approx(sol.cost, rel=1e-9, abs=1e-12)
+        np.testing.assert_array_equal((aff.Z @ th)[pin.ravel()], 0.0)
+    assert hits >= 5 and nonzero_pins >= 3
+    du_hits = 0
+    for seed in range(40):  # the increment form of the random instances
+        case = random_instance(seed)
+        inst, data = case["inst"], {**case["data"], "y_max_override": None}
+        for k in ("u_min", "u_max", "du_min", "du_max", "y_min", "y_max"):
+            if inst[k] is not None:
+                inst = {**inst, k: 10.0 * inst[k]}
+        mpc = make_mpc(inst, osqp_settings=TIGHT, form="condensed", unconstrained_first=True)
+        aff = mpc.unconstrained_affine()
+        sol = solve(mpc, data)
+        if aff is None or sol.status != "solved (unconstrained)":
+            continue
+        du_hits += 1
+        th = mpc._theta
+        np.testing.assert_allclose(aff.U @ th, sol.U.ravel(), rtol=1e-9, atol=1e-10)
+        r = aff.R @ th
+        assert float(r @ r) == pytest.approx(sol.cost, rel=1e-9, abs=1e-12)
+    assert du_hits >= 3
+    case = random_instance(0)
+    assert make_mpc(case["inst"]).unconstrained_affine() is None
+    sparse = make_mpc(case["inst"], form="sparse", unconstrained_first=True)
+    assert sparse.unconstrained_affine() is None
+
+
 @pytest.mark.parametrize("form", ["condensed", "sparse"])
 def test_default_settings_are_accurate_on_random_instances(form):
     """With the default OSQP tolerances the plan is still within 1e-3 of the optimum."""

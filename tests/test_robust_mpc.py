@@ -189,11 +189,12 @@ def test_rsmpc_info_and_hold_bookkeeping(scenario):
         info = loop.step()
         if left == 0:
             assert info["triggered"] and 1 <= info["hold_steps"] <= c.M_max
-            assert info["qp_solves"] >= 1
+            assert info["candidates"] >= 1
+            assert 0 <= info["qp_solves"] + info["closed_form"] <= info["candidates"]
             n_trig += 1
             left = info["hold_steps"] - 1
         else:
-            assert not info["triggered"] and info["qp_solves"] == 0
+            assert not info["triggered"] and info["qp_solves"] == info["candidates"] == 0
             left -= 1
         assert info["triggers"] == n_trig
 
@@ -348,9 +349,12 @@ def test_hold_searches_agree(scenario):
 
 def test_hold_decisions_use_exact_costs():
     """J^M <= J^1 (eq. 29) is decided on exact costs: on paper 001's undisturbed run the
-    exact unconstrained optimum (held increments pinned) decides nearly every candidate;
-    its cost equals the cost of its plan evaluated independently, and no tight OSQP
-    solve of the same problem finds a plan of lower cost.
+    closed-form unconstrained optimum of each candidate (held increments pinned) decides
+    nearly every candidate.  Where it meets every row, the QP core's solve of the same
+    problem is decided by its own unconstrained shortcut with the same plan and cost,
+    the cost equals that of the plan evaluated independently, and no tight OSQP solve
+    finds a plan of lower cost; where it does not, its cost is below the solve's (the
+    screen's lower bound).
 
     J is of order 1e-7 … 1e-5 here.  OSQP's own objective carries the L1 penalty on
     slacks at solver precision (1e5 × 1e-11 per row): a bias of order 1e-7 even at 1e-10
@@ -360,54 +364,53 @@ def test_hold_decisions_use_exact_costs():
     c = RobustSelfTriggeredMPC(get_scenario("paper001_stopping"), N=10)
     loop = ClosedLoop(get_scenario("paper001_stopping"), c)
     loop.reset(seed=0)
-    solve = c._solve
-    seen = {"exact": 0, "osqp": 0}
+    solve, closed_form, stage_data = c._solve, c._closed_form, c._stage_data
+    seen = {"exact": 0, "below": 0, "osqp": 0}
     costs = []
+    last = {}
 
-    def checked(prob, data):
-        sol = solve(prob, data)
-        if sol.iterations:
-            seen["osqp"] += 1
-            return sol
+    def capture(obs):
+        last["data"] = stage_data(obs)
+        return last["data"]
+
+    def checked(prob, g):
+        ev = closed_form(prob, g)
+        assert ev is not None
+        J, feasible, out = ev[0], ev[1], ev[2]
+        sol = solve(prob, last["data"])
+        if not feasible:
+            seen["below"] += 1
+            assert J <= sol.cost + 1e-9
+            return ev
         seen["exact"] += 1
         mpc = prob.mpc
+        assert sol.status == "solved (unconstrained)"
+        assert J == pytest.approx(sol.cost, rel=1e-9, abs=1e-13)
+        assert abs(float(out[0] - sol.u0[0])) <= 1e-10
         plan_cost = mpc._evaluate_plan(sol.U.ravel())[3]
-        assert plan_cost == pytest.approx(sol.cost, rel=1e-9, abs=1e-13)
+        assert plan_cost == pytest.approx(J, rel=1e-9, abs=1e-13)
         if seen["exact"] <= 40:  # a tight OSQP solve of the same problem: no better plan
             mpc._unc_first = False
             mpc._backend.prob.update_settings(eps_abs=1e-10, eps_rel=1e-10, max_iter=200_000)
-            ref = solve(prob, data)
+            ref = solve(prob, last["data"])
             mpc._backend.prob.update_settings(eps_abs=1e-6, eps_rel=1e-6, max_iter=4000)
             mpc._unc_first = True
             assert ref.status == "solved"
-            assert mpc._evaluate_plan(ref.U.ravel())[3] >= sol.cost - 1e-12
-            assert abs(float(sol.u0[0] - ref.u0[0])) <= 1e-7
-            costs.append(sol.cost)
-        return sol
+            assert mpc._evaluate_plan(ref.U.ravel())[3] >= J - 1e-12
+            assert abs(float(out[0] - ref.u0[0])) <= 1e-7
+            costs.append(J)
+        return ev
 
-    lower_bound = c._lower_bound
+    def counted(prob, data):
+        seen["osqp"] += 1
+        return solve(prob, data)
 
-    def checked_bound(prob, data):
-        # the screen that discards a hold without a solve (J^M >= bound > J^1): the bound
-        # is the exact cost when the solve is decided exactly, below it otherwise
-        lb = lower_bound(prob, data)
-        assert lb is not None
-        sol = solve(prob, data)
-        if sol.iterations:
-            assert lb <= sol.cost + 1e-9
-        else:
-            assert lb == sol.cost
-        seen["bounds"] += 1
-        return lb
-
-    seen["bounds"] = 0
-    c._solve = checked
-    c._lower_bound = checked_bound
+    c._stage_data, c._closed_form, c._solve = capture, checked, counted
     screened = 0
     while not loop.done:
         info = loop.step()
-        screened += info["candidates"] - info["qp_solves"]
-    assert seen["bounds"] > 0 and screened > 0
-    # decided exactly: by the screen or by the shortcut
+        screened += info["candidates"] - info["qp_solves"] - info["closed_form"]
+    assert screened > 0 and seen["below"] > 0
+    # decided exactly: by the screen or in closed form
     assert screened + seen["exact"] >= 0.9 * (screened + seen["exact"] + seen["osqp"])
     assert np.median(costs) < 1e-4  # the costs compared really are this small

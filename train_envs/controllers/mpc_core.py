@@ -198,6 +198,7 @@ _min_reduce = np.minimum.reduce
 __all__ = [
     "LinearMPC",
     "MPCSolution",
+    "UnconstrainedAffine",
     "UnconstrainedGain",
     "terminal_cost_dare",
     "terminal_cost_lyapunov",
@@ -393,6 +394,35 @@ class UnconstrainedGain:
 # ---------------------------------------------------------------------------
 # terminal-cost helpers
 # ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class UnconstrainedAffine:
+    r"""The unconstrained optimum of a :class:`LinearMPC` as explicit functions of its data.
+
+    With no active row the QP's optimum is affine in the data vector ``θ`` (the critical
+    region of the empty active set of the multiparametric QP; Bemporad, Morari, Dua,
+    Pistikopoulos, Automatica 38(1), 2002): ``z = Z θ`` (condensed decision, inputs pinned
+    by the base bounds held at zero), the predicted states ``vec(X) = X θ`` (stages
+    ``1..Np``, rows stacked), outputs ``vec(Y) = Y θ``, input plan ``vec(U) = U θ`` and
+    the weighted residuals ``e = R θ`` of the cost, ``J = ‖R θ‖²`` (``MPCSolution.cost``:
+    objective plus its data constant, here as a sum of squares: the solve forms it as
+    the objective plus a constant, which cancel to its size, so for costs far below the
+    constant this one is the more accurate).
+    ``θ``'s layout is the controller's: ``θ[0] = 1`` and the named ``slots`` (index
+    slices of ``x0``, ``up``, ``r``, ``xN``, ``d``, ``D``, ``ur``; ``r`` and ``D`` row
+    major ``(Np, p)`` / ``(Np, n)``).  Valid while the weights and the pinned pattern
+    are those it was made with (:meth:`LinearMPC.unconstrained_affine`); whether the
+    optimum is feasible for given data is the caller's check.
+    """
+
+    Z: np.ndarray
+    X: np.ndarray
+    Y: np.ndarray
+    U: np.ndarray
+    R: np.ndarray
+    slots: dict
+    ntheta: int
+
+
 def terminal_cost_dare(
     A: ArrayLike, B: ArrayLike, Qx: ArrayLike, R: ArrayLike
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1420,6 +1450,7 @@ class LinearMPC:
         self._Cpinv = np.linalg.pinv(C)
         # condensed data for gain_unconstrained(), the refinement and the fallback
         self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
+        self._LwEz = Lw @ Ez  # weighted residuals e = LwEz z + Lth_c theta
         self._Xth, self._Sx = Xth, Sx
 
     def _q_init(self) -> np.ndarray:
@@ -1905,6 +1936,45 @@ class LinearMPC:
             return None
         Lv = v[self._sl_L]
         return hit[1] + float(np.dot(Lv, Lv))
+
+    def unconstrained_affine(self) -> UnconstrainedAffine | None:
+        """The unconstrained optimum as explicit affine maps of the data vector ``θ``.
+
+        The same minimiser as :meth:`unconstrained_cost` and the unconstrained shortcut of
+        :meth:`solve` (inputs pinned by equal base bounds held at their value), composed
+        with the data map: see :class:`UnconstrainedAffine`.  A caller that evaluates
+        many problems of a family for the same stage data (self-triggered MPC's hold
+        lengths) composes these maps with its own data layout once and then needs one
+        matrix-vector product per problem and step.  Its check that the optimum meets
+        every row replaces the solve's; :meth:`adopt_unconstrained` then leaves the state
+        a solve would.  Returns None where the shortcut is not available (see
+        :meth:`unconstrained_cost`) or a pinned input is held at a non-zero value.  Costs
+        a few small matrix products: make it once per weight or pin change.
+        """
+        if not self._unc_first or self._sparse:
+            return None
+        nz = self._nz
+        if self._unc_minimiser(np.zeros(nz), False, self._Lb0) is None:
+            return None
+        mHinv, _, H, reduced = self._unc
+        key = None if self._zdu else self._pin_key
+        if key is None:
+            K = mHinv
+        else:
+            rows_p, K, _ = reduced[key]
+            if np.any(self._Lb0[rows_p] != 0.0):
+                return None
+        Mf = self._M_full
+        Z = K @ Mf[:nz]
+        R = self._LwEz @ Z + self._Lth_c
+        npn = self.Np * self.n
+        traj = self._Wz_xy @ Z + self._M_xy
+        X = traj[:npn]
+        Y = X if self._y_is_x else traj[npn:]
+        U = self._Wz_u @ Z + Mf[self._sl_traj_u]
+        return UnconstrainedAffine(
+            Z=Z, X=X, Y=Y, U=U, R=R, slots=dict(self._slots), ntheta=Mf.shape[1]
+        )
 
     def _outside_box(self, upl: list[float]) -> bool:
         """Whether the previous input lies outside the input box (with rate limits the

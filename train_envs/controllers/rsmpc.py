@@ -41,27 +41,27 @@ Exact costs.  ``J^M ≤ J^1`` compares numbers that are small when the train tra
 (of order 1e-7 … 1e-5 on the undisturbed paper 001 run, each the difference of a QP
 objective and a constant of order 1e3).  OSQP's objective is not accurate at that
 level: its L1 slack penalty on slacks at solver precision alone adds ~1e-7, even at a
-1e-10 tolerance, so holds decided on OSQP's costs followed solver noise.  The
-candidates are therefore first solved exactly (the unconstrained optimum with the held
-increments pinned, kept when no row binds, see :class:`LinearMPC`); on that run 98 % of
-the candidate solves are decided this way.  With exact costs the undisturbed run holds
-1 step at 300 of 372 triggers (β = 3); under paper 001's disturbance the counts are
-unchanged from the OSQP-only runs (README table).
-
-Screening.  A candidate ``M`` is first bounded from below by the cost of its
-unconstrained minimiser (held increments pinned; :meth:`LinearMPC.unconstrained_cost`):
-every constraint and slack penalty can only raise ``J^M``, so a bound above ``J^1``
-rejects ``M`` without setting bounds or solving -- the decision exact costs give (when
-the minimiser is feasible the bound is the solve's cost, bit for bit; otherwise only
-OSQP's tolerance could have put its cost at or below ``J^1``).  On
-paper 001's undisturbed run this discards 40 % of the candidates (618 of 1518 over six
-episodes), most of the rejected holds; accepted candidates are solved in full (their
-feasibility and plan are needed).
+1e-10 tolerance, so holds decided on OSQP's costs followed solver noise.  Each
+candidate is therefore first evaluated in closed form: the unconstrained optimum with
+the held increments pinned is affine in the stage data, and so are its constraint rows
+and weighted cost residuals (:meth:`LinearMPC.unconstrained_affine`, composed once per
+weight or W change with the stage vector of the trigger: one matrix-vector product per
+candidate, ``J^M = ‖r‖²`` as a sum of squares, accurate to its own size rather than to
+the constant's).  When no row binds, that optimum is the QP's: the candidate is decided
+without the QP core (on the undisturbed run all but a handful of the candidates).
+Otherwise its cost is still a lower bound on ``J^M`` -- every constraint and slack
+penalty can only raise the optimum -- so a bound above ``J^1`` rejects ``M`` without a
+solve (the screen; when the optimum was feasible the bound *is* the cost), and only the
+rest goes through the QP core (bounds, the core's own exact shortcut, OSQP).  With
+exact costs the undisturbed run holds 1 step at 300 of 372 triggers (β = 3); under paper
+001's disturbance the counts are unchanged from the OSQP-only runs (README table).  The
+``M − 1`` steps after a trigger cost nothing.
 
 Info per step: ``triggered`` (bool), ``hold_steps`` (M of the current hold),
 ``triggers`` (so far in the episode), ``candidates`` (hold lengths examined this step),
-``qp_solves`` (those solved in full, the others were screened out), and the usual
-solver fields (summed over the QPs of a trigger, zero while holding).
+``closed_form`` (those decided by their feasible closed-form optimum), ``qp_solves``
+(those solved through the QP core; the rest were screened out), and the usual solver
+fields (summed over the QP solves of a trigger, zero while holding).
 """
 
 from __future__ import annotations
@@ -145,6 +145,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
                 "hold_steps": self._hold_M,
                 "triggers": self._triggers,
                 "qp_solves": 0,
+                "closed_form": 0,
                 "candidates": 0,
                 "solve_time_s": 0.0,
                 "iterations": 0,
@@ -152,83 +153,103 @@ class RobustSelfTriggeredMPC(TubeMPC):
                 "slack_max": 0.0,
             }
         data = self._stage_data(obs)
+        g = data["g"]
         relaxed0 = self._relaxed
-        sols: dict[int, MPCSolution] = {1: self._solve(self._problem(1), data)}
-        sol1 = sols[1]
-        best = 1
+        sols: dict[int, MPCSolution] = {}  # solved through the QP core
+        closed: dict[int, tuple] = {}  # optimum in closed form (no row binds)
         screened = 0
-        Mx = self.M_max
-        # P^1 feasible: solved, no slack, terminal set kept (ΔU_f^1 ≠ ∅ in eq. 29)
-        feasible1 = self._accept(sol1, math.inf) and self._relaxed == relaxed0
-        if feasible1 and Mx > 1:
-            J1 = sol1.cost
 
-            def accept(M: int) -> bool:
-                nonlocal screened
-                prob = self._problem(M)
-                lb = self._lower_bound(prob, data)
-                if lb is not None and lb > J1:  # J^M >= lb > J^1: rejected, no solve
+        def accept(M: int, J1: float) -> bool:
+            nonlocal screened
+            prob = self._problem(M)
+            ev = self._closed_form(prob, g)
+            if ev is not None:
+                if ev[0] > J1:  # J^M >= its unconstrained cost > J^1: rejected
                     screened += 1
                     return False
-                r0 = self._relaxed
-                sols[M] = self._solve(prob, data)
-                return self._relaxed == r0 and self._accept(sols[M], J1)
+                if ev[1]:  # the unconstrained optimum is feasible: it is the QP's
+                    closed[M] = ev
+                    return True
+            else:
+                lb = self._lower_bound(prob, data)
+                if lb is not None and lb > J1:
+                    screened += 1
+                    return False
+            r0 = self._relaxed
+            sols[M] = self._solve(prob, data)
+            return self._relaxed == r0 and self._accept(sols[M], J1)
 
+        # P^1 feasible: solved, no slack, terminal set kept (ΔU_f^1 ≠ ∅ in eq. 29)
+        feasible1 = accept(1, math.inf) and self._relaxed == relaxed0
+        J1 = closed[1][0] if 1 in closed else sols[1].cost
+        best = 1
+        Mx = self.M_max
+        if feasible1 and Mx > 1:
             if self.search == "linear":
                 for M in range(Mx, 1, -1):
-                    if accept(M):
+                    if accept(M, J1):
                         best = M
                         break
             elif self.search == "warm":
                 # invariant: lo accepted, every M > hi rejected (interval assumption)
                 lo, hi = 1, Mx
-                g = min(max(self._hold_M, 2), Mx)  # last trigger's M first
-                if accept(g):
-                    lo = g
-                    if g < hi:
-                        if accept(g + 1):
-                            lo = g + 1
+                g_M = min(max(self._hold_M, 2), Mx)  # last trigger's M first
+                if accept(g_M, J1):
+                    lo = g_M
+                    if g_M < hi:
+                        if accept(g_M + 1, J1):
+                            lo = g_M + 1
                         else:
-                            hi = g
+                            hi = g_M
                 else:
-                    hi = g - 1
+                    hi = g_M - 1
                 while lo < hi:
                     mid = (lo + hi + 1) // 2
-                    if accept(mid):
+                    if accept(mid, J1):
                         lo = mid
                     else:
                         hi = mid - 1
                 best = lo
-            elif accept(Mx):
+            elif accept(Mx, J1):
                 best = Mx
             else:
                 lo, hi = 1, Mx - 1
                 while lo < hi:
                     mid = (lo + hi + 1) // 2
-                    if accept(mid):
+                    if accept(mid, J1):
                         lo = mid
                     else:
                         hi = mid - 1
                 best = lo
-        sol = sols[best]
-        u = data["u_prev"] + float(sol.u0[0])
-        cmd = self._command(obs, u)
-        self._u_hold = float(cmd.sum()) / self._mi  # what was actually sent
         self._hold_left = best - 1
         self._hold_M = best
         self._triggers += 1
+        n_exam = len(sols) + len(closed) + screened
+        solve_time = sum(s.solve_time_s for s in sols.values())
+        iters = sum(s.iterations for s in sols.values())
+        if best in closed:
+            ev = closed[best]
+            du0 = self._adopt(self._problems[best], ev)
+            fallback, slack, status, J = False, 0.0, 1, ev[0]
+        else:
+            sol = sols[best]
+            du0 = float(sol.u0[0])
+            fallback, slack, status, J = sol.fallback, sol.slack_max, sol.status_val, sol.cost
+        cmd = self._command(obs, data["u_prev"] + du0)
+        self._u_hold = float(cmd.sum()) / self._mi  # what was actually sent
         return cmd, {
             "triggered": True,
             "hold_steps": best,
             "triggers": self._triggers,
             "qp_solves": len(sols),
-            "candidates": len(sols) + screened,
-            "solve_time_s": sum(s.solve_time_s for s in sols.values()),
-            "iterations": sum(s.iterations for s in sols.values()),
-            "fallback": sol.fallback,
-            "slack_max": sol.slack_max,
-            "status_val": sol.status_val,
-            "J": sol.cost,
-            "J1": sol1.cost,
+            "closed_form": len(closed),
+            "candidates": n_exam,
+            "solve_time_s": solve_time,
+            "iterations": iters,
+            "fallback": fallback,
+            "slack_max": slack,
+            "status_val": status,
+            "J": J,
+            "J1": J1,
             "terminal_relaxed": self._relaxed,
         }
