@@ -153,7 +153,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
                 "slack_max": 0.0,
             }
         data = self._stage_data(obs)
-        g = data["g"]
+        g = data["h"]
         relaxed0 = self._relaxed
         sols: dict[int, MPCSolution] = {}  # solved through the QP core
         closed: dict[int, tuple] = {}  # optimum in closed form (no row binds)

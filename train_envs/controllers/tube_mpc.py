@@ -484,6 +484,19 @@ class _Explicit:
     Umap: np.ndarray
 
 
+class _StageData(dict):
+    """One step's data: the stage vector ``h`` and ``u_prev``; the QP core's arrays
+    (``xs``, ``D``, ``v_lim``, ``xi0``, ``s_o``) are derived on first access."""
+
+    __slots__ = ("derive",)
+
+    def __missing__(self, key: str) -> Any:
+        if "xs" in self:
+            raise KeyError(key)
+        self.update(self.derive(self))
+        return dict.__getitem__(self, key)
+
+
 class TubeMPC(Controller):
     """Paper 001's tube robust MPC ("rmpc"); see the module docstring for the equations.
 
@@ -777,49 +790,66 @@ class TubeMPC(Controller):
 
     # -------------------------------------------------------------- per step
     def _stage_data(self, obs: Observation) -> dict[str, Any]:
-        """Dead-time prediction ξ_0 and every per-stage array along the longest horizon.
+        """The step's stage vector ``h`` (what the closed forms read); the QP core's
+        per-stage arrays are derived from it on first access (:meth:`_derive`).
 
-        Grid index ``j`` is time ``t_0 + j T`` (``t_0``: now, or the profile time at the
-        train's position for distance-indexed references); stage ``i`` of the QP is
-        grid index ``l + i``.  Positions are relative to the dead-time predicted one,
-        ``s_o`` (eq. 9 is translation invariant in ``s``): the QP data stay O(1) for
-        OSQP's relative tolerances.
+        ``h = [1, s, v, a, u_prev, u_pend (l), s_r, v_r, res, v_lim]``: the measured
+        state, the commands still in the dead time, and along the grid (index ``j`` is
+        time ``t_0 + j T``; ``t_0``: now, or the profile time at the train's position
+        for distance-indexed references) the reference position and speed, the nominal
+        resistance per unit inertial mass at the reference (``w_ff = −res``) and the
+        speed limit.
         """
         prof = self._prof
         t0 = float(prof.t_at_s(obs.s_m)) if self._distance_mode else obs.t_s
-        ts = self._tgrid + t0
-        s_r, v_r = prof.sv_at_t(ts)  # one segment search for both
-        ng = ts.size
-        # the stage vector g = [1, ξ_0 (4), s_o, ξ_s (ng × 4), resistance (ng), v_lim (ng)]:
-        # every problem's data are read from it (the closed forms take g[cols] directly)
-        g = np.empty(6 + 6 * ng)
-        g[0] = 1.0
-        xs = g[6 : 6 + 4 * ng].reshape(ng, 4)
-        res = g[6 + 4 * ng : 6 + 5 * ng]
-        # nominal resistance per unit inertial mass at the reference (w_ff = −that)
+        s_r, v_r = prof.sv_at_t(self._tgrid + t0)  # one segment search for both
+        ng, l = self._n_grid, self._l  # noqa: E741
+        o = 5 + l
+        h = np.empty(o + 4 * ng)
+        mi = self._mi
+        u_prev = float(obs.u_prev_N.sum()) / mi
+        if not self._initialised:
+            self._pend[:] = u_prev
+            self._initialised = True
+        h[:5] = (1.0, obs.s_m, obs.v_mps, float(obs.forces_N.sum()) / mi, u_prev)
+        h[5:o] = self._pend
+        h[o : o + ng] = s_r
+        h[o + ng : o + 2 * ng] = v_r
+        res = h[o + 2 * ng : o + 3 * ng]
         np.multiply(v_r, self._cc, out=res)
         res += self._cb
         res *= v_r
         res += self._ca * (v_r > 0)
         if self._grad is not None:
             res += self._cg * self._grad(s_r)
-        mi = self._mi
-        u_prev = float(obs.u_prev_N.sum()) / mi
-        if not self._initialised:
-            self._pend[:] = u_prev
-            self._initialised = True
-        x = np.array([obs.s_m, obs.v_mps, float(obs.forces_N.sum()) / mi])
-        m, l = self._model, self._l  # noqa: E741
+        lim = self._v_lim_const
+        if lim is None:
+            track = self._track
+            lim = track.speed_limit_at(s_r) if track is not None else self._v_lim_none
+        h[o + 3 * ng :] = lim
+        data = _StageData(h=h, u_prev=u_prev)
+        data.derive = self._derive
+        return data
+
+    def _derive(self, data: Mapping[str, Any]) -> dict[str, Any]:
+        """The QP core's data from the stage vector: the dead-time prediction ξ_0 (eq. 10),
+        the reference states ξ_s and the affine terms along the grid (stage ``i`` of a QP
+        is grid index ``l + i``).  Positions are relative to the dead-time predicted one,
+        ``s_o`` (eq. 9 is translation invariant in ``s``): the QP data stay O(1) for
+        OSQP's relative tolerances."""
+        h = data["h"]
+        ng, l = self._n_grid, self._l  # noqa: E741
+        o = 5 + l
+        s_r, v_r = h[o : o + ng], h[o + ng : o + 2 * ng]
+        res, v_lim = h[o + 2 * ng : o + 3 * ng], h[o + 3 * ng :]
+        x = h[1:4]
         if l:
-            x = m.Phi_l @ x + m.Gam_u @ self._pend - m.Gam_w @ res[:l]  # w_ff = −res
+            m = self._model
+            x = m.Phi_l @ x + m.Gam_u @ h[5:o] - m.Gam_w @ res[:l]  # w_ff = −res
         s_o = float(x[0])
-        xi0 = g[1:5]
-        xi0[0] = 0.0
-        xi0[1:3] = x[1:]
-        xi0[3] = u_prev
-        g[5] = s_o
         # reference state ξ_s = [s_r, v_r, a_s, u_s]: a_s = mean reference acceleration of
         # the next interval minus w_ff, u_s = a_s of the previous interval
+        xs = np.empty((ng, 4))
         np.subtract(s_r, s_o, out=xs[:, 0])
         xs[:, 1] = v_r
         a_s = xs[:-1, 2]
@@ -829,22 +859,50 @@ class TubeMPC(Controller):
         xs[-1, 2] = xs[-2, 2]
         xs[1:, 3] = a_s
         xs[0, 3] = xs[0, 2]
-        v_lim = g[6 + 5 * ng :]
-        lim = self._v_lim_const
-        if lim is None:
-            track = self._track
-            lim = track.speed_limit_at(s_r) if track is not None else self._v_lim_none
-        v_lim[:] = lim
-        D = np.multiply(res[:, None], self._minus_E4)  # d_j = E w_ff,j
         return {
             "xs": xs,
-            "D": D,
+            "D": np.multiply(res[:, None], self._minus_E4),  # d_j = E w_ff,j
             "v_lim": v_lim,
-            "xi0": xi0,
+            "xi0": np.array([0.0, x[1], x[2], h[4]]),
             "s_o": s_o,
-            "u_prev": u_prev,
-            "g": g,
         }
+
+    def _fold(self, G: np.ndarray) -> np.ndarray:
+        """Maps on the derived layout ``g = [1, ξ_0, s_o, ξ_s (ng × 4), res, v_lim]`` as
+        maps on the stage vector ``h`` of :meth:`_stage_data` (every relation of
+        :meth:`_derive` is linear: substitute it column by column)."""
+        ng, l = self._n_grid, self._l  # noqa: E741
+        rows = G.shape[0]
+        XS, RES, VL = 6, 6 + 4 * ng, 6 + 5 * ng
+        o = 5 + l
+        xsc = G[:, XS:RES].reshape(rows, ng, 4)
+        A2 = xsc[:, :-1, 2].copy()  # on a_s,j = (v_r,j+1 − v_r,j)/T + res_j, j < ng − 1
+        A2 += xsc[:, 1:, 3]  # u_s,j+1 = a_s,j
+        A2[:, 0] += xsc[:, 0, 3]  # u_s,0 = a_s,0
+        A2[:, -1] += xsc[:, -1, 2]  # a_s,ng−1 = a_s,ng−2
+        Vr = xsc[:, :, 1].copy()
+        Vr[:, 1:] += A2 * self._inv_dt
+        Vr[:, :-1] -= A2 * self._inv_dt
+        Res = G[:, RES:VL].copy()
+        Res[:, :-1] += A2
+        Sr = xsc[:, :, 0]
+        # on the dead-time predicted (s_o, v, a): s_o also enters every ξ_s,j = s_r,j − s_o
+        cx = np.column_stack([G[:, 5] - Sr.sum(axis=1), G[:, 2], G[:, 3]])
+        H = np.zeros((rows, o + 4 * ng))
+        H[:, 0] = G[:, 0]
+        H[:, 4] = G[:, 4]
+        if l:
+            m = self._model
+            H[:, 1:4] = cx @ m.Phi_l
+            H[:, 5:o] = cx @ m.Gam_u
+            Res[:, :l] -= cx @ m.Gam_w
+        else:
+            H[:, 1:4] = cx
+        H[:, o : o + ng] = Sr
+        H[:, o + ng : o + 2 * ng] = Vr
+        H[:, o + 2 * ng : o + 3 * ng] = Res
+        H[:, o + 3 * ng :] = G[:, VL:]
+        return H
 
     def _buffers(self, prob: _Problem) -> tuple:
         """Per-step index constants and work arrays of one problem (made on first use)."""
@@ -950,7 +1008,8 @@ class TubeMPC(Controller):
             if nb > nt:
                 chk[tr[nt:], XS + 4 * steps + 1] += 1.0
                 chk[tr[nt:], VL + steps] -= 1.0
-        Um = on_g(aff.U)
+        G = self._fold(G)
+        Um = self._fold(on_g(aff.U))
         cols = np.flatnonzero(np.any(G != 0.0, axis=0) | np.any(Um != 0.0, axis=0))
         bb = np.concatenate(b)
         return _Explicit(
@@ -963,10 +1022,10 @@ class TubeMPC(Controller):
         )
 
     def _closed_form(self, prob: _Problem, g: np.ndarray) -> tuple | None:
-        """``(J, feasible, out, gv)``: the cost of the problem's unconstrained optimum for
-        the stage vector ``g`` (a lower bound on the QP's cost, equal to it when
-        ``feasible``: no row binds, so the optimum is the QP's) and the map's outputs;
-        None without a closed form.  Non-finite data give ``feasible = False``."""
+        """``(J, feasible, out, gv)`` for the stage vector ``g`` (``h`` of :meth:`_stage_data`):
+        the cost of the problem's unconstrained optimum (a lower bound on the QP's cost,
+        equal to it when ``feasible``: no row binds, so the optimum is the QP's) and the
+        map's outputs; None without a closed form.  Non-finite data: not feasible."""
         e = prob.explicit
         if e is None:
             e = self._explicit(prob)
@@ -1053,7 +1112,7 @@ class TubeMPC(Controller):
         data = self._stage_data(obs)
         prob = self._problem(1)
         self._steps += 1
-        ev = self._closed_form(prob, data["g"])
+        ev = self._closed_form(prob, data["h"])
         if ev is not None and ev[1]:  # no row binds: the QP's optimum in closed form
             du0 = self._adopt(prob, ev)
             return self._command(obs, data["u_prev"] + du0), {

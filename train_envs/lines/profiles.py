@@ -83,6 +83,7 @@ class SpeedProfile:
     _v: list[float] = field(init=False)
     _t: list[float] = field(init=False)
     _al: list[float] = field(init=False)
+    _seg_tbl: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         s = check_increasing("SpeedProfile.s_m", self.s_m)
@@ -128,6 +129,11 @@ class SpeedProfile:
         object.__setattr__(self, "_v", v.tolist())
         object.__setattr__(self, "_t", t.tolist())
         object.__setattr__(self, "_al", a.tolist())
+        # per segment, for sv_at_t's single gather: t_i, t_i+1 − t_i, v_i, a_i / 2, a_i, s_i,
+        # s_i+1 (a_i / 2 is exact: (a/2)·τ is the bit pattern of 0.5 * a * τ)
+        tbl = np.column_stack([t[:-1], t[1:] - t[:-1], v[:-1], 0.5 * a, a, s[:-1], s[1:]])
+        tbl.setflags(write=False)
+        object.__setattr__(self, "_seg_tbl", tbl)
 
     def __repr__(self) -> str:
         return (
@@ -205,14 +211,27 @@ class SpeedProfile:
         return np.minimum(s, self.s_m[i + 1])
 
     def sv_at_t(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(s_at_t(t), v_at_t(t))`` for an array of times with one segment search."""
+        """``(s_at_t(t), v_at_t(t))`` for an array of times with one segment search (and
+        one gather of the segments' constants: the same arithmetic, fewer numpy calls)."""
         x = np.asarray(t, float)
-        i = self._seg(x, self.t_s)
-        t0 = self.t_s[i]
-        tau = np.minimum(np.maximum(x - t0, 0.0), self.t_s[i + 1] - t0)
-        v0, a = self.v_mps[i], self._a[i]
-        s = np.minimum(self.s_m[i] + (v0 + 0.5 * a * tau) * tau, self.s_m[i + 1])
-        return s, np.maximum(v0 + a * tau, 0.0)
+        i = self.t_s.searchsorted(x, side="right")
+        i -= 1
+        np.maximum(i, 0, out=i)
+        np.minimum(i, len(self._t) - 2, out=i)
+        seg = self._seg_tbl[i].T
+        t0, span, v0, ha, a, s0, s1 = seg
+        tau = x - t0
+        np.maximum(tau, 0.0, out=tau)
+        np.minimum(tau, span, out=tau)
+        s = ha * tau
+        s += v0
+        s *= tau
+        s += s0
+        np.minimum(s, s1, out=s)
+        v = a * tau
+        v += v0
+        np.maximum(v, 0.0, out=v)
+        return s, v
 
     def sample_sv(self, t0: float, dt: float, n: int) -> tuple[list[float], list[float]]:
         """``(s, v)`` at the ``n`` times ``t0 + k dt``, ``k = 1..n``, as Python lists.
