@@ -236,7 +236,8 @@ class RobustSelfTriggeredMPC(TubeMPC):
             du0 = float(sol.u0[0])
             fallback, slack, status, J = sol.fallback, sol.slack_max, sol.status_val, sol.cost
         cmd = self._command(obs, data["u_prev"] + du0)
-        self._u_hold = float(cmd.sum()) / self._mi  # what was actually sent
+        # what was actually sent
+        self._u_hold = (cmd.item() if cmd.size == 1 else float(cmd.sum())) / self._mi
         return cmd, {
             "triggered": True,
             "hold_steps": best,

@@ -473,7 +473,7 @@ class _Explicit:
     ``out = T @ g[cols]`` stacks the decision ``z`` (``nz`` rows), the constraint rows
     written as ``row <= b`` (``nchk`` rows: increment box both sides, the tightened
     ``s``, ``v``, command rows of every stage, the terminal set) and the weighted cost
-    residuals (``J = ‖r‖²``); ``Umap @ g[cols]`` is the input plan.
+    residuals (``J = ‖r‖²``); ``Umap @ g[cols]`` is the input plan (None: it is ``z``).
     """
 
     cols: np.ndarray
@@ -481,7 +481,7 @@ class _Explicit:
     nz: int
     nchk: int
     b: np.ndarray
-    Umap: np.ndarray
+    Umap: np.ndarray | None
 
 
 class _StageData(dict):
@@ -781,7 +781,7 @@ class TubeMPC(Controller):
             np.full(self._n_grid, float(lims[0])) if lims is not None and lims.size == 1 else None
         )
         self._v_lim_none = np.full(self._n_grid, _BIG)
-        self._pend = np.zeros(l)
+        self._pend = [0.0] * l  # commands [m/s²] still in the dead time, oldest first
         self._initialised = False
         self._multi = ctx.n_inputs > 1
         self._shares = input_shares(ctx) if self._multi else None
@@ -807,11 +807,18 @@ class TubeMPC(Controller):
         o = 5 + l
         h = np.empty(o + 4 * ng)
         mi = self._mi
-        u_prev = float(obs.u_prev_N.sum()) / mi
+        up, fo = obs.u_prev_N, obs.forces_N
+        # (a single input: its value, as the sum would give it)
+        u_prev = (up.item() if up.size == 1 else float(up.sum())) / mi
         if not self._initialised:
-            self._pend[:] = u_prev
+            self._pend = [u_prev] * l
             self._initialised = True
-        h[:5] = (1.0, obs.s_m, obs.v_mps, float(obs.forces_N.sum()) / mi, u_prev)
+        a = (fo.item() if fo.size == 1 else float(fo.sum())) / mi
+        h[0] = 1.0
+        h[1] = obs.s_m
+        h[2] = obs.v_mps
+        h[3] = a
+        h[4] = u_prev
         h[5:o] = self._pend
         h[o : o + ng] = s_r
         h[o + ng : o + 2 * ng] = v_r
@@ -1018,7 +1025,8 @@ class TubeMPC(Controller):
             nz=Np,
             nchk=bb.size,
             b=bb,
-            Umap=np.ascontiguousarray(Um[:, cols]),
+            # the plan is the decision itself in the absolute-input form
+            Umap=None if np.array_equal(Um, G[:Np]) else np.ascontiguousarray(Um[:, cols]),
         )
 
     def _closed_form(self, prob: _Problem, g: np.ndarray) -> tuple | None:
@@ -1044,8 +1052,10 @@ class TubeMPC(Controller):
         the state its solve would, return the first increment."""
         e = prob.explicit
         out, gv = ev[2], ev[3]
-        z = out[: e.nz].copy()
-        prob.mpc.adopt_unconstrained(z, np.dot(e.Umap, gv).reshape(e.nz, 1))
+        nz = e.nz
+        z = out[:nz].copy()
+        U = z if e.Umap is None else np.dot(e.Umap, gv)
+        prob.mpc.adopt_unconstrained(z, U.reshape(nz, 1))
         rate = self._rate
         return min(max(float(z[0]), -rate), rate)
 
@@ -1090,8 +1100,8 @@ class TubeMPC(Controller):
         u_acc = min(max(u_acc, -tr.max_brake_N(v) / mi), tr.max_traction_N(v) / mi)
         if self._l:
             p = self._pend
-            p[:-1] = p[1:]
-            p[-1] = u_acc
+            del p[0]
+            p.append(u_acc)
         if self._multi:
             return distribute(ctx, u_acc * mi, v, obs.u_prev_N, self._shares)
         return np.array([u_acc * mi])
