@@ -376,7 +376,9 @@ def test_hold_decisions_use_exact_costs():
     def checked(prob, g):
         ev = closed_form(prob, g)
         assert ev is not None
-        J, feasible, out = ev[0], ev[1], ev[2]
+        J, feasible = ev
+        e = prob.explicit
+        out = e.T[: e.nz] @ g[e.cols]  # the closed-form plan
         sol = solve(prob, last["data"])
         if not feasible:
             seen["below"] += 1
@@ -414,3 +416,60 @@ def test_hold_decisions_use_exact_costs():
     # decided exactly: by the screen or in closed form
     assert screened + seen["exact"] >= 0.9 * (screened + seen["exact"] + seen["osqp"])
     assert np.median(costs) < 1e-4  # the costs compared really are this small
+
+
+def test_compiled_kernels_match_the_numpy_path(monkeypatch):
+    """The compiled stage vector equals the numpy path's bit for bit, the compiled
+    closed forms agree with it to rounding, and a run without the kernels (numba
+    missing or ``TRAIN_ENVS_NO_JIT=1``) takes the same decisions."""
+    import train_envs.controllers.tube_mpc as tube
+
+    sc = get_scenario("paper001_stopping")
+    c = RobustSelfTriggeredMPC(sc, N=10)
+    loop = ClosedLoop(sc, c)
+    loop.reset(seed=0)
+    assert c._kern is not None, "numba kernels not available"
+    stage_data, closed_form = c._stage_data, c._closed_form
+    n = {"stage": 0, "cf": 0}
+
+    def stage_checked(obs):
+        pend, init = list(c._pend), c._initialised
+        kern, c._kern = c._kern, None
+        ref = stage_data(obs)["h"]
+        c._kern, c._pend, c._initialised = kern, pend, init
+        data = stage_data(obs)
+        np.testing.assert_array_equal(data["h"], ref)
+        n["stage"] += 1
+        return data
+
+    def cf_checked(prob, h):
+        got = closed_form(prob, h)
+        kern, c._kern = c._kern, None
+        ref = closed_form(prob, h)
+        c._kern = kern
+        assert got[1] == ref[1]
+        assert got[0] == pytest.approx(ref[0], rel=1e-12, abs=1e-18)
+        n["cf"] += 1
+        return got
+
+    c._stage_data, c._closed_form = stage_checked, cf_checked
+    holds = []
+    while not loop.done:
+        info = loop.step()
+        if info["triggered"]:
+            holds.append(info["hold_steps"])
+    assert n["stage"] == len(holds) and n["cf"] > len(holds)
+    # the same run on the numpy path alone
+    monkeypatch.setattr(tube, "kernels", lambda: None)
+    c2 = RobustSelfTriggeredMPC(sc, N=10)
+    loop2 = ClosedLoop(sc, c2)
+    loop2.reset(seed=0)
+    assert c2._kern is None
+    holds2 = []
+    while not loop2.done:
+        info = loop2.step()
+        if info["triggered"]:
+            holds2.append(info["hold_steps"])
+    assert holds2 == holds
+    stop, stop2 = loop.metrics()["stop_error_m"], loop2.metrics()["stop_error_m"]
+    assert stop2 == pytest.approx(stop, abs=1e-9)

@@ -229,7 +229,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
         iters = sum(s.iterations for s in sols.values())
         if best in closed:
             ev = closed[best]
-            du0 = self._adopt(self._problems[best], ev)
+            du0 = self._adopt(self._problems[best], g)
             fallback, slack, status, J = False, 0.0, 1, ev[0]
         else:
             sol = sols[best]

@@ -132,6 +132,7 @@ import numpy as np
 from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 
 from train_envs.controllers._common import distribute, input_shares
+from train_envs.controllers._kernels import kernels
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
 from train_envs.controllers.train_mpc import zoh
@@ -771,6 +772,20 @@ class TubeMPC(Controller):
         n_max = max(self._horizon(M) for M in self._holds())
         self._n_grid = l + n_max + max(self.settings.terminal_steps, default=0) + 2
         self._tgrid = ctx.dt_s * np.arange(self._n_grid)
+        self._kern = kernels()
+        if self._kern is not None:
+            g = self._grad
+            self._kern_tables = (
+                self._prof.t_s,
+                self._prof._seg_tbl,
+                g.x if g is not None else np.zeros(1),
+                np.column_stack([g.y0, g.slope]) if g is not None else np.zeros((1, 2)),
+                g is not None,
+                self._ca,
+                self._cb,
+                self._cc,
+                self._cg,
+            )
         self._inv_dt = 1.0 / ctx.dt_s
         self._term_idx = np.asarray(self.settings.terminal_steps, dtype=int)
         self._E4 = self._model.E[:, 0].copy()
@@ -802,10 +817,24 @@ class TubeMPC(Controller):
         """
         prof = self._prof
         t0 = float(prof.t_at_s(obs.s_m)) if self._distance_mode else obs.t_s
-        s_r, v_r = prof.sv_at_t(self._tgrid + t0)  # one segment search for both
         ng, l = self._n_grid, self._l  # noqa: E741
         o = 5 + l
         h = np.empty(o + 4 * ng)
+        kern = self._kern
+        if kern is not None:  # the same numbers in one compiled call
+            kern.fill_reference(h, o, self._tgrid, t0, *self._kern_tables)
+            s_r = h[o : o + ng]
+        else:
+            s_r, v_r = prof.sv_at_t(self._tgrid + t0)  # one segment search for both
+            h[o : o + ng] = s_r
+            h[o + ng : o + 2 * ng] = v_r
+            res = h[o + 2 * ng : o + 3 * ng]
+            np.multiply(v_r, self._cc, out=res)
+            res += self._cb
+            res *= v_r
+            res += self._ca * (v_r > 0)
+            if self._grad is not None:
+                res += self._cg * self._grad(s_r)
         mi = self._mi
         up, fo = obs.u_prev_N, obs.forces_N
         # (a single input: its value, as the sum would give it)
@@ -820,15 +849,6 @@ class TubeMPC(Controller):
         h[3] = a
         h[4] = u_prev
         h[5:o] = self._pend
-        h[o : o + ng] = s_r
-        h[o + ng : o + 2 * ng] = v_r
-        res = h[o + 2 * ng : o + 3 * ng]
-        np.multiply(v_r, self._cc, out=res)
-        res += self._cb
-        res *= v_r
-        res += self._ca * (v_r > 0)
-        if self._grad is not None:
-            res += self._cg * self._grad(s_r)
         lim = self._v_lim_const
         if lim is None:
             track = self._track
@@ -1029,32 +1049,31 @@ class TubeMPC(Controller):
             Umap=None if np.array_equal(Um, G[:Np]) else np.ascontiguousarray(Um[:, cols]),
         )
 
-    def _closed_form(self, prob: _Problem, g: np.ndarray) -> tuple | None:
-        """``(J, feasible, out, gv)`` for the stage vector ``g`` (``h`` of :meth:`_stage_data`):
-        the cost of the problem's unconstrained optimum (a lower bound on the QP's cost,
-        equal to it when ``feasible``: no row binds, so the optimum is the QP's) and the
-        map's outputs; None without a closed form.  Non-finite data: not feasible."""
+    def _closed_form(self, prob: _Problem, h: np.ndarray) -> tuple[float, bool] | None:
+        """``(J, feasible)`` for the stage vector ``h`` of :meth:`_stage_data`: the cost of
+        the problem's unconstrained optimum (a lower bound on the QP's cost, equal to it
+        when ``feasible``: no row binds, so the optimum is the QP's); None without a
+        closed form.  Non-finite data: not feasible."""
         e = prob.explicit
         if e is None:
             e = self._explicit(prob)
         if e is False:
             return None
-        gv = g[e.cols]
-        out = np.dot(e.T, gv)
-        nz = e.nz
-        k = nz + e.nchk
-        r = out[k:]
-        J = float(np.dot(r, r))
-        return J, _min_reduce(e.b - out[nz:k]) >= 0.0, out, gv
+        kern = self._kern
+        if kern is not None:
+            return kern.closed_form(e.T, e.cols, h, e.b, e.nz, e.nchk)
+        out = np.dot(e.T[e.nz :], h[e.cols])
+        r = out[e.nchk :]
+        return float(np.dot(r, r)), bool(_min_reduce(e.b - out[: e.nchk]) >= 0.0)
 
-    def _adopt(self, prob: _Problem, ev: tuple) -> float:
-        """Take a feasible closed-form optimum as the problem's solution: leave the core
-        the state its solve would, return the first increment."""
+    def _adopt(self, prob: _Problem, h: np.ndarray) -> float:
+        """Take the feasible closed-form optimum for ``h`` as the problem's solution: leave
+        the core the state its solve would, return the first increment."""
         e = prob.explicit
-        out, gv = ev[2], ev[3]
         nz = e.nz
-        z = out[:nz].copy()
-        U = z if e.Umap is None else np.dot(e.Umap, gv)
+        hv = h[e.cols]
+        z = np.dot(e.T[:nz], hv)
+        U = z if e.Umap is None else np.dot(e.Umap, hv)
         prob.mpc.adopt_unconstrained(z, U.reshape(nz, 1))
         rate = self._rate
         return min(max(float(z[0]), -rate), rate)
@@ -1122,9 +1141,10 @@ class TubeMPC(Controller):
         data = self._stage_data(obs)
         prob = self._problem(1)
         self._steps += 1
-        ev = self._closed_form(prob, data["h"])
+        h = data["h"]
+        ev = self._closed_form(prob, h)
         if ev is not None and ev[1]:  # no row binds: the QP's optimum in closed form
-            du0 = self._adopt(prob, ev)
+            du0 = self._adopt(prob, h)
             return self._command(obs, data["u_prev"] + du0), {
                 "terminal_relaxed": self._relaxed,
                 "solve_time_s": 0.0,
