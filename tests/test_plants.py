@@ -224,6 +224,42 @@ def test_single_car_fast_path_equals_general_path(scenario):
     assert fast.work_brake_J == pytest.approx(slow.work_brake_J, rel=1e-12)
 
 
+@pytest.mark.parametrize(
+    "scenario, wind",
+    [("paper001_stopping", None), ("paper004_urban", "harmonic"), ("yizhuang", None)],
+)
+def test_compiled_single_car_step_equals_the_float_path_bit_for_bit(scenario, wind):
+    """The compiled twin of the single-car step (numba) gives the float path's numbers
+    exactly: states, time, standstill, energies, dead-time buffer, over braking to a
+    standstill, breakaway and random and harmonic disturbances."""
+    from train_envs.scenarios import build_plant, get_scenario
+
+    base = get_scenario(scenario)
+    spec = base.disturbance.__class__(random_bound_mps2=0.05, wind=wind)
+    sc = base.with_overrides(disturbance=spec)
+    comp = build_plant(sc, np.random.default_rng(1))
+    ref = build_plant(sc, np.random.default_rng(1))
+    ref._kern = False  # the float path
+    rng = np.random.default_rng(0)
+    stops = 0
+    for k in range(650):
+        u = float(rng.uniform(-1, 1)) * sc.train.max_brake_N(0.0) * (0.2 if k < 300 else 1.0)
+        if 380 <= k < 560:
+            u = -sc.train.max_brake_N(0.0)  # to a standstill, then away again
+        elif k >= 560:
+            u = sc.train.max_traction_N(0.0)
+        comp.step(u, sc.dt_ctrl_s)
+        ref.step(u, sc.dt_ctrl_s)
+        assert comp.z.tolist() == ref.z.tolist(), k
+        assert (comp.t, comp.stopped, comp._head) == (ref.t, ref.stopped, ref._head)
+        assert (comp.work_traction_J, comp.work_brake_J) == (ref.work_traction_J, ref.work_brake_J)
+        stops += comp.stopped
+    assert comp._kern, "numba kernel not available"
+    assert stops > 0 and not comp.stopped
+    if ref._buf_list is not None:
+        assert comp._buffer[:, 0].tolist() == ref._buf_list
+
+
 def test_envelope_lists_equal_the_vectorised_envelope_bit_for_bit():
     from train_envs.trains import list_trains
 

@@ -21,37 +21,22 @@ of this file compiles (about a second).
 
 from __future__ import annotations
 
-import os
-from types import ModuleType
+from types import SimpleNamespace
 
 import numpy as np
 
-_STATE: dict[str, ModuleType | None] = {}
+from train_envs._jit import compiled
+
+_STATE: dict[str, SimpleNamespace | None] = {}
 
 
-def kernels() -> ModuleType | None:
-    """This module with its compiled functions, or None (numba missing or disabled)."""
-    if "mod" not in _STATE:
-        mod = None
-        if os.environ.get("TRAIN_ENVS_NO_JIT", "") in ("", "0"):
-            try:
-                import numba
-            except ImportError:  # pragma: no cover - numba is a dependency
-                numba = None
-            if numba is not None:
-                _compile(numba)
-                import sys
-
-                mod = sys.modules[__name__]
-        _STATE["mod"] = mod
-    return _STATE["mod"]
-
-
-def _compile(numba: ModuleType) -> None:
-    global fill_reference, closed_form
-    jit = numba.njit(cache=True, nogil=True)
-    fill_reference = jit(_fill_reference)
-    closed_form = jit(_closed_form)
+def kernels() -> SimpleNamespace | None:
+    """``fill_reference`` and ``closed_form`` compiled, or None (numba missing or
+    ``TRAIN_ENVS_NO_JIT=1``)."""
+    if "k" not in _STATE:
+        fr, cf = compiled(_fill_reference), compiled(_closed_form)
+        _STATE["k"] = None if fr is None else SimpleNamespace(fill_reference=fr, closed_form=cf)
+    return _STATE["k"]
 
 
 def _fill_reference(
@@ -152,7 +137,3 @@ def _closed_form(
     for r in range(nchk, out.size):
         J += out[r] * out[r]
     return J, feasible
-
-
-fill_reference = _fill_reference
-closed_form = _closed_form

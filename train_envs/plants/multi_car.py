@@ -47,11 +47,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from train_envs._jit import compiled
+from train_envs.plants._kernels import run_single
 from train_envs.plants.integrator import ETD2Integrator
 from train_envs.plants.lookup import PiecewiseLinear
 from train_envs.plants.resistance import DavisVariation, Disturbance
 from train_envs.trains import G, TrainParams
 from train_envs.validation import check_finite, check_nonnegative, check_positive, check_range
+
+_NO_DIST = np.zeros(1)  # placeholder array argument of the compiled step
 
 
 @dataclass(frozen=True)
@@ -228,6 +232,8 @@ class TrainPlant:
             )
         ]
         self._grad_src: object = None
+        self._kern = None  # compiled single-car step (False: not available)
+        self._kconst: np.ndarray | None = None
         self._grad_lists: tuple[list[float], list[float], list[float]] | None = None
         # the lead car's acceleration read-out of a single car needs no matrix product:
         # its row of [A B] has one non-zero entry (m'^-1 on the force state, or on the
@@ -560,11 +566,17 @@ class TrainPlant:
         ``tests/test_plants.py`` checks it against the general path.
         """
         order = self.actuator.order
+        grad = self.gradient_permil
+        tab = self._grad_table() if grad is not None else None
+        kern = self._kern
+        if kern is None:
+            kern = self._kern = compiled(run_single) or False
+        if kern and (tab is not None or grad is None):
+            self._run_single_compiled(kern, w_cmd, k, z, order, tab is not None)
+            return
         Phi, Gam, P1, P2 = self._sc_mats
         h = self.h
         h2 = 0.25 * h
-        grad = self.gradient_permil
-        tab = self._grad_table() if grad is not None else None
         if tab is not None:
             xl, y0l, sl = tab
         dists = self.disturbances
@@ -673,6 +685,69 @@ class TrainPlant:
         self.z = np.array([z0, z1, z2] if order else [z0, z1])
         self.t = t
         self.stopped = stopped
+        self._w_now = w
+        self._p_last = p_last
+        self.work_traction_J += wt
+        self.work_brake_J += wb
+
+    def _run_single_compiled(
+        self, kern, w_cmd: float, k: int, z: list[float] | None, order: int, has_tab: bool
+    ) -> None:
+        """:meth:`_run_single` through its compiled twin (:func:`._kernels.run_single`):
+        the same floats in, the same floats out."""
+        c = self._kconst
+        if c is None:
+            Phi, Gam, P1, P2 = self._sc_mats
+            c = self._kconst = np.array(
+                [self.h, self._ca0, self._cb0, self._cc0, self._mg0, self._m0, self._minv0]
+                + [self.HOLD_SPEED_MPS]
+                + [x for row in Phi for x in row]
+                + list(Gam)
+                + list(P1)
+                + list(P2)
+            )
+        if z is None:
+            z = self.z.tolist()
+        pl = self._p_last
+        st = np.array(
+            [
+                z[0],
+                z[1],
+                z[2] if order else 0.0,
+                self.t,
+                pl if type(pl) is float else float(pl[0]),
+                1.0 if self.stopped else 0.0,
+                w_cmd,
+                0.0,
+                0.0,
+            ]
+        )
+        dists = self.disturbances
+        if dists:  # the sums the loop adds at t_0 + j h (the times it reaches by t += h)
+            wd = []
+            tj, h = self.t, self.h
+            for _ in range(k + 1):
+                acc = 0.0
+                for dist in dists:
+                    acc += dist.accel(tj)
+                wd.append(acc)
+                tj += h
+            wdv = np.array(wd)
+        else:
+            wdv = _NO_DIST
+        g = self.gradient_permil
+        if has_tab:
+            xs, y0, sl = g.x, g.y0, g.slope
+        else:
+            xs = y0 = sl = _NO_DIST
+        buf = self._buffer
+        self._head = kern(
+            st, buf[:, 0], self._head, k, order, c, xs, y0, sl, has_tab, wdv, bool(dists)
+        )
+        z0, z1, z2, t, p_last, stopped, w, wt, wb = st.tolist()
+        self.z = np.array([z0, z1, z2] if order else [z0, z1])
+        self.t = t
+        self.stopped = stopped != 0.0
         self._w_now = w
         self._p_last = p_last
         self.work_traction_J += wt
