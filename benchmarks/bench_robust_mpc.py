@@ -61,6 +61,7 @@ def _lockstep(N: int, episodes: int) -> dict[str, dict[str, float]]:
     trig_wall: list[float] = []
     qps: list[int] = []
     cands: list[int] = []
+    closed: list[int] = []
     for ep in range(episodes + 1):  # episode 0: warm-up (QP builds), not timed
         for lp in loops.values():
             lp.reset(seed=0)
@@ -81,6 +82,7 @@ def _lockstep(N: int, episodes: int) -> dict[str, dict[str, float]]:
                     trig_wall.append(dt)
                     qps.append(int(info["qp_solves"]))
                     cands.append(int(info["candidates"]))
+                    closed.append(int(info["closed_form"]))
     out: dict[str, dict[str, float]] = {}
     ref_med, ref_mean = float(np.median(wall["mpc"])), float(np.mean(wall["mpc"]))
     for name in NAMES:
@@ -98,6 +100,7 @@ def _lockstep(N: int, episodes: int) -> dict[str, dict[str, float]]:
     out["rsmpc"]["trigger_mean_us"] = 1e6 * float(np.mean(trig_wall))
     out["rsmpc"]["qps_per_trigger"] = float(np.mean(qps))
     out["rsmpc"]["candidates_per_trigger"] = float(np.mean(cands))
+    out["rsmpc"]["closed_per_trigger"] = float(np.mean(closed))
     out["rsmpc"]["triggers"] = len(trig_wall) / episodes
     return out
 
@@ -153,14 +156,15 @@ def main() -> None:
         trig_rows.append((N, r["rsmpc"]))
     print()
     print(
-        "| N | RSMPC triggers/episode | hold lengths examined/trigger | QPs solved/trigger "
+        "| N | RSMPC triggers/episode | hold lengths examined/trigger "
+        "| decided in closed form/trigger | QPs solved/trigger "
         "| median wall/trigger [µs] | mean wall/trigger [µs] |"
     )
-    print("|---:|---:|---:|---:|---:|---:|")
+    print("|---:|---:|---:|---:|---:|---:|---:|")
     for N, x in trig_rows:
         print(
             f"| {N} | {x['triggers']:.0f} | {x['candidates_per_trigger']:.2f} | "
-            f"{x['qps_per_trigger']:.2f} | "
+            f"{x['closed_per_trigger']:.2f} | {x['qps_per_trigger']:.2f} | "
             f"{x['trigger_med_us']:.0f} | {x['trigger_mean_us']:.0f} |"
         )
     print()

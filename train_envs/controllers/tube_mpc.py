@@ -115,7 +115,10 @@ longest horizon), and so are the tightened rows and the weighted cost residuals
 change); when no row binds it is the QP's optimum and the core is not called
 (:meth:`LinearMPC.adopt_unconstrained` keeps its warm start and fallback plan).  On
 paper 001's runs no tightened row binds at 98 % of the steps (undisturbed); the rest
-goes through the core (its own exact shortcut, then OSQP).
+goes through the core (its own exact shortcut, then OSQP).  The stage vector and the
+closed forms run as compiled twins (:mod:`train_envs.controllers._kernels`, numba) of
+the numpy code here, which stays the reference and the fallback
+(``TRAIN_ENVS_NO_JIT=1``).
 
 Reference: L. Chisci, J. A. Rossiter, G. Zappa, "Systems with persistent
 disturbances: predictive control with restricted constraints", Automatica 37 (2001).
