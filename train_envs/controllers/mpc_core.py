@@ -185,6 +185,7 @@ import time
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -541,6 +542,30 @@ def _psd_sqrt(W: np.ndarray) -> np.ndarray:
     lam, V = np.linalg.eigh(W)
     keep = lam > 1e-14 * max(1.0, float(np.max(np.abs(lam), initial=0.0)))
     return np.sqrt(lam[keep])[:, None] * V[:, keep].T
+
+
+def _scaled_blocks(D: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``np.kron(D, X)`` for a diagonal ``D``: the blocks ``D_ii X`` on the diagonal (the
+    same products, without kron's general machinery; called at every weight change)."""
+    k = D.shape[0]
+    r, c = X.shape
+    out = np.zeros((k, r, k, c))
+    i = np.arange(k)
+    out[i, :, i, :] = np.diag(D)[:, None, None] * X
+    return out.reshape(k * r, k * c)
+
+
+def _block_diag(parts: list[np.ndarray]) -> np.ndarray:
+    """``scipy.linalg.block_diag`` of 2-D arrays (without its argument handling)."""
+    rows = sum(a.shape[0] for a in parts)
+    cols = sum(a.shape[1] for a in parts)
+    out = np.zeros((rows, cols))
+    r = c = 0
+    for a in parts:
+        out[r : r + a.shape[0], c : c + a.shape[1]] = a
+        r += a.shape[0]
+        c += a.shape[1]
+    return out
 
 
 def _csc_pattern(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -1234,21 +1259,16 @@ class LinearMPC:
         M[:, s] = np.eye(s.stop - s.start)
         return M
 
-    def _build(self) -> None:
-        """Compute every model/weight-dependent matrix (dense) and the OSQP values.
-
-        The condensed quantities (prediction matrices, Hessian ``H``, the maps of the
-        constraint rows onto ``z``) are built for both forms: they give
-        :meth:`gain_unconstrained`, the exact refinement and the fallback prediction.
-        """
-        self._unc = None  # the unconstrained shortcut's data follow the matrices
-        self._pin_key: bytes | None | bool = False  # pinned inputs: not looked at yet
+    def _structure(self) -> SimpleNamespace:
+        """The weight-independent part of :meth:`_build`: condensed prediction matrices and
+        the constraint rows on ``z`` (made once per model; weight changes reuse it)."""
+        st = self.__dict__.get("_struct")
+        if st is not None:
+            return st
         n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
         A, B, C = self._A, self._B, self._C
         nt = self._ntheta
         sel = self._sel
-        sparse = self._sparse
-
         # condensed prediction -------------------------------------------------------
         powers = [np.eye(n)]
         for _ in range(Np):
@@ -1281,44 +1301,7 @@ class LinearMPC:
         Uth = Tu @ sel("up", nt)
         dUth = Du @ sel("up", nt)
 
-        # weighted residuals e = Ez z + Eth theta (condensed), weights W ------------------
-        Ez_parts = [Sy, self._Dz]
-        Eth_parts = [Yth - sel("r", nt), dUth]
-        # per-stage weight scales (``stage_scales``; identity by default)
-        sQ, sR, sS = self._stage_scales
-        DQ = np.eye(Np) if sQ is None else np.diag(sQ)
-        DR = np.eye(Nc) if sR is None else np.diag(sR)
-        DS = np.eye(Np) if sS is None else np.diag(sS)
-        W_parts = [np.kron(DQ, self._Q), np.kron(DR, self._R)]
-        L_parts = [
-            np.kron(np.sqrt(DQ), _psd_sqrt(self._Q)),
-            np.kron(np.sqrt(DR), _psd_sqrt(self._R)),
-        ]
-        if self._S is not None:
-            Ez_parts.append(Tz)
-            Eth_parts.append(Uth - sel("ur", nt))
-            W_parts.append(np.kron(DS, self._S))
-            L_parts.append(np.kron(np.sqrt(DS), _psd_sqrt(self._S)))
-        if self._P is not None:
-            if self.terminal == "state":
-                Ez_parts.append(Sx[-n:])
-                Eth_parts.append(Xth[-n:] - sel("xN", nt))
-            else:
-                Ez_parts.append(Sy[-p:])
-                Eth_parts.append(Yth[-p:] - sel("r", nt)[-p:])
-            W_parts.append(self._P)
-            L_parts.append(_psd_sqrt(self._P))
-        Ez = np.vstack(Ez_parts)
-        Eth = np.vstack(Eth_parts)
-        W = sla.block_diag(*W_parts)
-        Lw = sla.block_diag(*L_parts)
-        EzW = Ez.T @ W
-        H = EzW @ Ez
-        H = 0.5 * (H + H.T)
-        Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
-        Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
-
-        # output/state constraint rows on z (condensed) ---------------------------------
+        # output/state constraint rows on z (condensed)
         con = self._con
         ncon = con["g"].size
         Gz = np.zeros((ncon, nz))
@@ -1335,6 +1318,86 @@ class LinearMPC:
             Gz[idx] = GK @ Sz
             Gth[idx] = GK @ St
             Gx[idx] = np.tile(g.G @ C if g.on == "y" else g.G, (K, 1))
+        st = self._struct = SimpleNamespace(
+            Phi=Phi,
+            Gam=Gam,
+            GamD=GamD,
+            Tu=Tu,
+            Du=Du,
+            Tz=Tz,
+            Cb=Cb,
+            Sx=Sx,
+            Sy=Sy,
+            Dth=Dth,
+            Xth=Xth,
+            Yth=Yth,
+            Uth=Uth,
+            dUth=dUth,
+            Gz=Gz,
+            Gth=Gth,
+            Gx=Gx,
+            Cpinv=np.linalg.pinv(C),
+        )
+        return st
+
+    def _build(self) -> None:
+        """Compute every model/weight-dependent matrix (dense) and the OSQP values.
+
+        The condensed quantities (prediction matrices, Hessian ``H``, the maps of the
+        constraint rows onto ``z``) are built for both forms: they give
+        :meth:`gain_unconstrained`, the exact refinement and the fallback prediction.
+        """
+        self._unc = None  # the unconstrained shortcut's data follow the matrices
+        self._pin_key: bytes | None | bool = False  # pinned inputs: not looked at yet
+        n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
+        A, B, C = self._A, self._B, self._C
+        nt = self._ntheta
+        sel = self._sel
+        sparse = self._sparse
+
+        S_ = self._structure()
+        Tu, Tz, Cb, Sx, Sy = S_.Tu, S_.Tz, S_.Cb, S_.Sx, S_.Sy
+        Dth, Xth, Yth, Uth, dUth = S_.Dth, S_.Xth, S_.Yth, S_.Uth, S_.dUth
+        Gz, Gth, Gx = S_.Gz, S_.Gth, S_.Gx
+
+        # weighted residuals e = Ez z + Eth theta (condensed), weights W ------------------
+        Ez_parts = [Sy, self._Dz]
+        Eth_parts = [Yth - sel("r", nt), dUth]
+        # per-stage weight scales (``stage_scales``; identity by default)
+        sQ, sR, sS = self._stage_scales
+        DQ = np.eye(Np) if sQ is None else np.diag(sQ)
+        DR = np.eye(Nc) if sR is None else np.diag(sR)
+        DS = np.eye(Np) if sS is None else np.diag(sS)
+        W_parts = [_scaled_blocks(DQ, self._Q), _scaled_blocks(DR, self._R)]
+        L_parts = [
+            _scaled_blocks(np.sqrt(DQ), _psd_sqrt(self._Q)),
+            _scaled_blocks(np.sqrt(DR), _psd_sqrt(self._R)),
+        ]
+        if self._S is not None:
+            Ez_parts.append(Tz)
+            Eth_parts.append(Uth - sel("ur", nt))
+            W_parts.append(_scaled_blocks(DS, self._S))
+            L_parts.append(_scaled_blocks(np.sqrt(DS), _psd_sqrt(self._S)))
+        if self._P is not None:
+            if self.terminal == "state":
+                Ez_parts.append(Sx[-n:])
+                Eth_parts.append(Xth[-n:] - sel("xN", nt))
+            else:
+                Ez_parts.append(Sy[-p:])
+                Eth_parts.append(Yth[-p:] - sel("r", nt)[-p:])
+            W_parts.append(self._P)
+            L_parts.append(_psd_sqrt(self._P))
+        Ez = np.vstack(Ez_parts)
+        Eth = np.vstack(Eth_parts)
+        W = _block_diag(W_parts)
+        Lw = _block_diag(L_parts)
+        EzW = Ez.T @ W
+        H = EzW @ Ez
+        H = 0.5 * (H + H.T)
+        Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
+        Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+
+        con = self._con
         rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
         self._rho_s = rho_s
         self._gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
@@ -1447,7 +1510,7 @@ class LinearMPC:
         self._sl_traj_u = slice(t0, t0 + n_tu)
         self._sl_L = slice(t0 + n_tu, M.shape[0])
         self._Wz_u = None if sparse else np.ascontiguousarray(self._Tz_c)
-        self._Cpinv = np.linalg.pinv(C)
+        self._Cpinv = S_.Cpinv
         # condensed data for gain_unconstrained(), the refinement and the fallback
         self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
         self._LwEz = Lw @ Ez  # weighted residuals e = LwEz z + Lth_c theta
@@ -1565,6 +1628,7 @@ class LinearMPC:
         """Replace the model (same dimensions; ``C=None`` keeps the current ``C``)."""
         A_, B_, C_ = self._check_model(A, B, self._C if C is None else C, (self.n, self.m, self.p))
         self._A, self._B, self._C = A_, B_, C_
+        self._struct = None
         self._build()
         self._push_matrices()
 

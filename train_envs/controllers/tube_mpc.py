@@ -1015,32 +1015,42 @@ class TubeMPC(Controller):
         Y = aff.Y.reshape(Np, 3, nth)
         Z = aff.Z
         ymin, ymax = prob.y_min, prob.y_max
-        rows = [Z, -Z, Y[:, 0], -Y[:, 1], Y[:, 1], -Y[:, 2], Y[:, 2]]
-        b = [prob.du, prob.du, ymax[:, 0], -ymin[:, 1], -prob.tau_v, -ymin[:, 2], ymax[:, 2]]
         nb = prob.H_N.shape[0]
+        nt = self._term_idx.size
+        # every distinct row once on g (the stage vector before folding), then the unit
+        # terms of the data-dependent bounds, then the fold onto h
+        base = [Z, Y[:, 0], Y[:, 1], Y[:, 2]]
         if nb:
-            rows.append(prob.H_N @ aff.X[-4:])
-            nt = self._term_idx.size
-            b.append(np.concatenate([np.full(nt, self._s_max), np.zeros(nb - nt)]) - prob.tau_term)
-        G = on_g(np.vstack([Z] + rows + [aff.R]))
-        chk = G[Np : Np + sum(len(x) for x in b)]  # (view)
-        o = 2 * Np
-        chk[o : o + Np, 5] += 1.0  # s + s_o
-        o += 2 * Np
-        chk[np.arange(o, o + Np), VL + stage] -= 1.0  # v − v_lim
-        o += 3 * Np
+            base.append(prob.H_N @ aff.X[-4:])
+        base.append(aff.R)
+        Gb = on_g(np.vstack(base))
+        s_rows = slice(Np, 2 * Np)
+        Gb[s_rows, 5] += 1.0  # s + s_o <= s_max − τ_s
+        Gv = Gb[2 * Np : 3 * Np].copy()
+        Gv[np.arange(Np), VL + stage] -= 1.0  # v − v_lim <= −τ_v
         if nb:
             steps = self._term_idx + (l + Np)
-            tr = np.arange(o, o + nb)
-            chk[tr, XS + 4 * (l + Np) : XS + 4 * (l + Np) + 4] -= prob.H_N
-            chk[tr[:nt], 5] += 1.0
-            chk[tr[:nt], XS + 4 * steps] += 1.0
+            tr = np.arange(4 * Np, 4 * Np + nb)
+            Gb[tr, XS + 4 * (l + Np) : XS + 4 * (l + Np) + 4] -= prob.H_N
+            Gb[tr[:nt], 5] += 1.0
+            Gb[tr[:nt], XS + 4 * steps] += 1.0
             if nb > nt:
-                chk[tr[nt:], XS + 4 * steps + 1] += 1.0
-                chk[tr[nt:], VL + steps] -= 1.0
-        G = self._fold(G)
-        Um = self._fold(on_g(aff.U))
-        cols = np.flatnonzero(np.any(G != 0.0, axis=0) | np.any(Um != 0.0, axis=0))
+                Gb[tr[nt:], XS + 4 * steps + 1] += 1.0
+                Gb[tr[nt:], VL + steps] -= 1.0
+        H = self._fold(np.vstack([Gb, Gv]))
+        Hz, Hs, Hv, Hu = H[:Np], H[Np : 2 * Np], H[2 * Np : 3 * Np], H[3 * Np : 4 * Np]
+        Ht, Hr, Hvl = H[4 * Np : 4 * Np + nb], H[4 * Np + nb : -Np], H[-Np:]
+        rows = [Hz, Hz, -Hz, Hs, -Hv, Hvl, -Hu, Hu, Ht, Hr]
+        b = [prob.du, prob.du, ymax[:, 0], -ymin[:, 1], -prob.tau_v, -ymin[:, 2], ymax[:, 2]]
+        if nb:
+            b.append(np.concatenate([np.full(nt, self._s_max), np.zeros(nb - nt)]) - prob.tau_term)
+        G = np.vstack(rows)
+        # the plan is the decision itself in the absolute-input form
+        Um = None if np.array_equal(aff.U, Z) else self._fold(on_g(aff.U))
+        used = np.any(G != 0.0, axis=0)
+        if Um is not None:
+            used |= np.any(Um != 0.0, axis=0)
+        cols = np.flatnonzero(used)
         bb = np.concatenate(b)
         return _Explicit(
             cols=cols,
@@ -1048,8 +1058,7 @@ class TubeMPC(Controller):
             nz=Np,
             nchk=bb.size,
             b=bb,
-            # the plan is the decision itself in the absolute-input form
-            Umap=None if np.array_equal(Um, G[:Np]) else np.ascontiguousarray(Um[:, cols]),
+            Umap=None if Um is None else np.ascontiguousarray(Um[:, cols]),
         )
 
     def _closed_form(self, prob: _Problem, h: np.ndarray) -> tuple[float, bool] | None:
