@@ -1,7 +1,10 @@
 """Env throughput: env steps/s, real-time factor, and where the step time goes.
 
-Run: ``python benchmarks/bench_envs.py [--episodes 2]``. For every registered id with
-its default controller (constant default action): env steps per second, the real-time
+Run: ``python benchmarks/bench_envs.py [--episodes 2] [--ids ...] [--noise 0.05]``. For
+every registered id with its default controller (constant default action; with
+``--noise s`` the default action plus Gaussian noise of std ``s`` in the action's [−1, 1]
+units at every step, seeded: parameters that change at every env step, as under a
+stochastic RL policy): env steps per second, the real-time
 factor (simulated seconds per wall second), and where the wall time goes, measured by
 wrapping the calls: the controller's ``compute`` (for the MPCs this contains OSQP's own
 solve time, reported separately), the plant step, the closed-loop runner around them
@@ -17,12 +20,13 @@ import argparse
 import time
 
 import gymnasium as gym
+import numpy as np
 
 import train_envs  # noqa: F401
 from train_envs.envs import params_to_action, registered_ids
 
 
-def bench(env_id: str, episodes: int) -> dict[str, float]:
+def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
     env = gym.make(env_id)
     base = env.unwrapped
     ctrl = base.controller
@@ -57,6 +61,7 @@ def bench(env_id: str, episodes: int) -> dict[str, float]:
         return out
 
     loop.step = timed_loop_step
+    rng = np.random.default_rng(0)
     steps = 0
     sim_s = 0.0
     wall = 0.0
@@ -76,7 +81,11 @@ def bench(env_id: str, episodes: int) -> dict[str, float]:
         t0 = time.perf_counter()
         done = False
         while not done:
-            _, _, term, trunc, _ = env.step(action)
+            a = action
+            if noise > 0.0:
+                a = np.clip(action + noise * rng.standard_normal(action.shape), -1.0, 1.0)
+                a = a.astype(np.float32)
+            _, _, term, trunc, _ = env.step(a)
             steps += 1
             done = term or trunc
         wall += time.perf_counter() - t0
@@ -98,6 +107,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--episodes", type=int, default=2)
     ap.add_argument("--ids", nargs="*", default=None)
+    ap.add_argument("--noise", type=float, default=0.0, help="action noise std (RL-like)")
     args = ap.parse_args()
     ids = args.ids or registered_ids()
     print(
@@ -106,7 +116,7 @@ def main() -> None:
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for env_id in ids:
-        r = bench(env_id, args.episodes)
+        r = bench(env_id, args.episodes, args.noise)
         print(
             f"| {env_id} | {r['env_steps_per_s']:.0f} | {r['real_time_factor']:.0f} | "
             f"{100 * r['controller_share']:.0f} % | {100 * r['osqp_share']:.0f} % | "
