@@ -39,3 +39,4 @@ bench: setup
 
 clean:
 	rm -rf $(VENV) out runs .pytest_cache
+	find train_envs -name '*.nbi' -delete -o -name '*.nbc' -delete

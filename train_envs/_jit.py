@@ -1,19 +1,28 @@
 """Optional compilation (numba) of the few scalar hot loops of the library.
 
 :func:`compiled` returns a numba-compiled twin of a plain Python function, or None when
-numba is missing or ``TRAIN_ENVS_NO_JIT=1`` (then the callers run their numpy / Python
-reference code, which the tests compare with the compiled one).  numba is imported on
-first use only, so importing the package stays fast; compiled code is cached on disk
-(``cache=True``): only the first process after an install or a change of the source
-compiles.  No fast-math flags: the compiled loops do the reference's IEEE operations in
-the reference's order.
+numba is missing or ``TRAIN_ENVS_NO_JIT=1`` (the callers then run the function itself,
+or their numpy reference code; the tests compare both with the compiled one).  numba is
+imported on first use only, so importing the package stays fast; compiled code is cached
+on disk (``cache=True``): only the first process after an install or a change of the
+source compiles.  No fast-math flags: the compiled loops do the same IEEE operations in
+the same order as the Python source.
+
+The helpers below are written once and called from the kernels of
+:mod:`train_envs.controllers._kernels` and :mod:`train_envs.plants._kernels`.  numba's
+disk cache checks only the file of the compiled function itself: after changing a helper
+here, delete the ``*.nbi``/``*.nbc`` files under ``train_envs/**/__pycache__`` (``make
+clean`` does) or the kernels keep the old helper.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+import types
+from collections.abc import Callable, Mapping
 from typing import Any
+
+import numpy as np
 
 _CACHE: dict[Callable[..., Any], Callable[..., Any] | None] = {}
 
@@ -29,13 +38,45 @@ def enabled() -> bool:
     return True
 
 
-def compiled(func: Callable[..., Any]) -> Callable[..., Any] | None:
-    """The compiled twin of ``func`` (made once per process), or None."""
+def compiled(
+    func: Callable[..., Any], helpers: Mapping[str, Callable[..., Any]] | None = None
+) -> Callable[..., Any] | None:
+    """The compiled twin of ``func`` (made once per process), or None.
+
+    ``helpers``: the functions ``func`` (and the helpers themselves) call, by the global
+    name they call them by.  Compiled code can only call compiled code, so the twin and
+    its compiled helpers are bound to a private copy of ``func``'s module namespace; the
+    Python function and helpers stay as they are.
+    """
     if func not in _CACHE:
         if enabled():
             import numba
 
-            _CACHE[func] = numba.njit(cache=True, nogil=True)(func)
+            glb = dict(func.__globals__)
+            for name, helper in (helpers or {}).items():
+                glb[name] = numba.njit(cache=True, nogil=True)(_rebind(helper, glb))
+            _CACHE[func] = numba.njit(cache=True, nogil=True)(_rebind(func, glb))
         else:
             _CACHE[func] = None
     return _CACHE[func]
+
+
+def _rebind(func: Callable[..., Any], glb: dict[str, Any]) -> Callable[..., Any]:
+    """``func`` with the global namespace ``glb`` (same code, name and module)."""
+    out = types.FunctionType(func.__code__, glb, func.__name__, func.__defaults__, func.__closure__)
+    out.__qualname__, out.__module__ = func.__qualname__, func.__module__
+    out.__doc__ = func.__doc__
+    return out
+
+
+def bisect_right(xs: np.ndarray, x: float) -> int:
+    """``bisect.bisect_right`` on a sorted array: the number of entries ``<= x`` (0 for a
+    NaN ``x``, whose look-ups then give NaN anyway)."""
+    lo, hi = 0, len(xs)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if xs[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo

@@ -25,7 +25,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from train_envs._jit import compiled
+from train_envs._jit import bisect_right, compiled
 
 _STATE: dict[str, SimpleNamespace | None] = {}
 
@@ -34,7 +34,8 @@ def kernels() -> SimpleNamespace | None:
     """``fill_reference`` and ``closed_form`` compiled, or None (numba missing or
     ``TRAIN_ENVS_NO_JIT=1``)."""
     if "k" not in _STATE:
-        fr, cf = compiled(_fill_reference), compiled(_closed_form)
+        fr = compiled(_fill_reference, {"bisect_right": bisect_right})
+        cf = compiled(_closed_form)
         _STATE["k"] = None if fr is None else SimpleNamespace(fill_reference=fr, closed_form=cf)
     return _STATE["k"]
 
@@ -65,15 +66,7 @@ def _fill_reference(
     last = p_t.size - 2
     for j in range(ng):
         x = tgrid[j] + t0
-        # i = clip(searchsorted(p_t, x, "right") − 1, 0, last)
-        lo, hi = 0, p_t.size
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if p_t[mid] <= x:
-                lo = mid + 1
-            else:
-                hi = mid
-        i = lo - 1
+        i = bisect_right(p_t, x) - 1  # clip(searchsorted(p_t, x, "right") − 1, 0, last)
         if i < 0:
             i = 0
         elif i > last:
@@ -103,15 +96,7 @@ def _fill_reference(
         r *= v
         r += ca if v > 0.0 else 0.0
         if has_grad:
-            lo, hi = 0, g_x.size
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if g_x[mid] <= s:
-                    lo = mid + 1
-                else:
-                    hi = mid
-                # (a NaN position ends at index 0, whose value is NaN too)
-            k = lo - 1
+            k = bisect_right(g_x, s) - 1  # (a NaN position gives NaN at any index)
             if k < 0:
                 k = 0
             r += cg * (g_tbl[k, 0] + g_tbl[k, 1] * (s - g_x[k]))

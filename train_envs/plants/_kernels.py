@@ -1,22 +1,50 @@
-"""Compiled twin (numba, see :mod:`train_envs._jit`) of the single-car plant step.
+"""The single-car plant step as one scalar loop, compiled by numba (:mod:`train_envs._jit`).
 
-:meth:`TrainPlant._run_single` unrolls the ETD2 step of a single point train on Python
-floats; :func:`run_single` below is the same loop, statement for statement (the same
-IEEE operations in the same order, so the same numbers: ``tests/test_plants.py``
-compares them bit for bit), compiled.  Disturbances stay Python objects: the caller
-sums their accelerations at the sub-step times ``t_0 + j h`` (``j = 0..k``, the times at
-which the loop evaluates the nonlinear term) and passes the sums.
+:func:`run_single` is the ETD2 step of a single point train unrolled on scalars, with
+the nonlinear term, the gradient table and the dead-time buffer inlined.
+:meth:`TrainPlant._run_single` runs it compiled where numba is available and as plain
+Python otherwise (the same IEEE operations in the same order, so the same numbers:
+``tests/test_plants.py`` compares them bit for bit, and both with the general numpy
+path).  Disturbances stay Python objects: the caller sums their accelerations at the
+sub-step times ``t_0 + j h`` (``j = 0..k``, the times at which the loop evaluates the
+nonlinear term) and passes the sums.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from train_envs._jit import bisect_right
+
 #: layout of the float state vector ``st`` (in and out)
 ST_Z0, ST_Z1, ST_Z2, ST_T, ST_PLAST, ST_STOPPED, ST_W, ST_WT, ST_WB = range(9)
 #: layout of the constants ``c``: h, Davis a/b/c per unit mass, m g / 1000, m, 1/m',
 #: hold speed, then Φ (row major), Γ, h φ1, h φ2 (of the 3 or 2 states)
 C_H, C_CA, C_CB, C_CC, C_MG, C_M0, C_MINV, C_HOLD, C_MATS = range(9)
+
+
+def _nonlinear(
+    pos: float,
+    vel: float,
+    c: np.ndarray,
+    xl: np.ndarray,
+    y0l: np.ndarray,
+    sl: np.ndarray,
+    has_tab: bool,
+    wd: float,
+    has_dist: bool,
+) -> float:
+    """N(z, t) = −(Davis + gradient + disturbances)/M' per unit mass (the plant's
+    ``_nl_single``, the same operations)."""
+    av = vel if vel >= 0.0 else -vel
+    f = c[C_CA] + c[C_CB] * av + c[C_CC] * av * av
+    f = f if vel > 0 else (-f if vel < 0 else 0.0)
+    if has_tab:
+        i = bisect_right(xl, pos) - 1
+        f += c[C_MG] * (y0l[i] + sl[i] * (pos - xl[i]))
+    if has_dist:
+        f += c[C_M0] * wd
+    return -f * c[C_MINV]
 
 
 def run_single(
@@ -40,9 +68,8 @@ def run_single(
     """
     h = c[C_H]
     h2 = 0.25 * h
-    ca, cb, cc = c[C_CA], c[C_CB], c[C_CC]
-    mg, m0, minv, hold = c[C_MG], c[C_M0], c[C_MINV], c[C_HOLD]
-    nb = bl.size
+    ca, mg, hold = c[C_CA], c[C_MG], c[C_HOLD]
+    nb = len(bl)
     z0, z1 = st[ST_Z0], st[ST_Z1]
     if order:
         z2 = st[ST_Z2]
@@ -76,14 +103,7 @@ def run_single(
             F = w if order == 0 else z2
             g_f = 0.0
             if has_tab:
-                lo, hi = 0, xl.size  # i = bisect_right(xl, z0) − 1
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if xl[mid] <= z0:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                i = lo - 1
+                i = bisect_right(xl, z0) - 1
                 g_f = mg * (y0l[i] + sl[i] * (z0 - xl[i]))
             if F > g_f + ca:
                 stopped = False
@@ -94,23 +114,8 @@ def run_single(
                 t += h
                 p_last = 0.0
                 continue
-        # n0 = N(z, t)
-        av = z1 if z1 >= 0.0 else -z1
-        f = ca + cb * av + cc * av * av
-        f = f if z1 > 0 else (-f if z1 < 0 else 0.0)
-        if has_tab:
-            lo, hi = 0, xl.size  # i = bisect_right(xl, z0) − 1
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if xl[mid] <= z0:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            i = lo - 1
-            f += mg * (y0l[i] + sl[i] * (z0 - xl[i]))
-        if has_dist:
-            f += m0 * wd[j]
-        n0 = -f * minv
+        w0 = wd[j] if has_dist else 0.0
+        n0 = _nonlinear(z0, z1, c, xl, y0l, sl, has_tab, w0, has_dist)  # N(z, t)
         if order:
             a0 = p00 * z0 + p01 * z1 + p02 * z2 + g0 * w + q0 * n0
             a1 = p10 * z0 + p11 * z1 + p12 * z2 + g1 * w + q1 * n0
@@ -119,23 +124,9 @@ def run_single(
             a0 = p00 * z0 + p01 * z1 + g0 * w + q0 * n0
             a1 = p10 * z0 + p11 * z1 + g1 * w + q1 * n0
             a2 = 0.0
-        # N(a, t + h)
-        av = a1 if a1 >= 0.0 else -a1
-        f = ca + cb * av + cc * av * av
-        f = f if a1 > 0 else (-f if a1 < 0 else 0.0)
-        if has_tab:
-            lo, hi = 0, xl.size  # i = bisect_right(xl, a0) − 1
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if xl[mid] <= a0:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            i = lo - 1
-            f += mg * (y0l[i] + sl[i] * (a0 - xl[i]))
-        if has_dist:
-            f += m0 * wd[j + 1]
-        dn = -f * minv - n0
+        # N(a, t + h) − N(z, t)
+        w1 = wd[j + 1] if has_dist else 0.0
+        dn = _nonlinear(a0, a1, c, xl, y0l, sl, has_tab, w1, has_dist) - n0
         s_new = a0 + r0 * dn
         v_new = a1 + r1 * dn
         F_old = w if order == 0 else z2
@@ -167,3 +158,7 @@ def run_single(
     st[ST_WT] = wt
     st[ST_WB] = wb
     return head
+
+
+#: what :func:`run_single` calls, for :func:`train_envs._jit.compiled`
+RUN_SINGLE_HELPERS = {"bisect_right": bisect_right, "_nonlinear": _nonlinear}

@@ -31,11 +31,12 @@ so that the stopping position is accurate to well under a millimetre. It moves a
 when the net tractive force exceeds the gradient force plus the Davis constant term.
 
 Implementation: at a handful of states numpy's per-call overhead (~1 µs) dwarfs the
-arithmetic, so the per-sub-step work runs on Python floats wherever it can: the whole
-ETD2 step of the single-point train, and for several cars the nonlinear term, the
-saturation and the energy bookkeeping (the matrix products stay BLAS calls). The float
-code performs the same IEEE operations in the same order as the array formulation, so
-the results are identical to it bit for bit.
+arithmetic.  The whole ETD2 step of the single-point train is one scalar loop
+(:func:`train_envs.plants._kernels.run_single`), compiled by numba where available and
+interpreted on Python floats otherwise; for several cars the nonlinear term, the
+saturation and the energy bookkeeping run on Python floats (the matrix products stay
+BLAS calls).  Both perform the same IEEE operations in the same order as the array
+formulation, so the results are identical to it bit for bit.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from train_envs._jit import compiled
-from train_envs.plants._kernels import run_single
+from train_envs.plants._kernels import RUN_SINGLE_HELPERS, run_single
 from train_envs.plants.integrator import ETD2Integrator
 from train_envs.plants.lookup import PiecewiseLinear
 from train_envs.plants.resistance import DavisVariation, Disturbance
@@ -234,6 +235,7 @@ class TrainPlant:
         self._grad_src: object = None
         self._kern = None  # compiled single-car step (False: not available)
         self._kconst: np.ndarray | None = None
+        self._kconst_l: list[float] | None = None
         self._grad_lists: tuple[list[float], list[float], list[float]] | None = None
         # the lead car's acceleration read-out of a single car needs no matrix product:
         # its row of [A B] has one non-zero entry (m'^-1 on the force state, or on the
@@ -423,7 +425,6 @@ class TrainPlant:
         self.z = z
         self.t = float(t0)
         self._buffer = np.tile(w0, (self.delay_steps + 1, 1))
-        self._buf_list: list[float] | None = None  # the single-car path's copy of _buffer
         self._head = 0
         self._w_now: np.ndarray | float = w0.copy()
         self.stopped = v0 <= 0.0
@@ -527,7 +528,7 @@ class TrainPlant:
     def step(self, u: float | Sequence[float], duration_s: float) -> None:
         """Apply command ``u`` [N] (held) for ``duration_s`` (a multiple of ``dt_sim_s``)."""
         k = self._substeps(duration_s)
-        if self._scalar_ok:
+        if self._scalar_ok and (self.gradient_permil is None or self._grad_table() is not None):
             z = self.z.tolist()
             w = self._saturate_single(u, z[1])
             self.last_command = w
@@ -535,9 +536,6 @@ class TrainPlant:
             return
         w_cmd = self.saturate(self._split(u))
         self.last_command = w_cmd
-        if self._buf_list is not None:  # the single-car path ran last: take its buffer over
-            self._buffer[:, 0] = self._buf_list
-            self._buf_list = None
         buf = self._buffer
         nb = buf.shape[0]
         if nb == 1:
@@ -557,144 +555,18 @@ class TrainPlant:
             self._substep(w)
 
     def _run_single(self, w_cmd: float, k: int, z: list[float] | None = None) -> None:
-        """Scalar fast path of :meth:`step` for a single car (same arithmetic in floats).
-
-        The single-point train is the most simulated plant (every tuning evaluation
-        and RL rollout of the point-mass scenarios); at three states numpy's per-call
-        overhead dominates, so the ETD2 step is unrolled on Python floats here, with the
-        nonlinear term, the gradient look-up and the dead-time buffer inlined.
-        ``tests/test_plants.py`` checks it against the general path.
-        """
-        order = self.actuator.order
-        grad = self.gradient_permil
-        tab = self._grad_table() if grad is not None else None
+        """Single-car fast path of :meth:`step`: :func:`._kernels.run_single`, the ETD2
+        step unrolled on scalars with the nonlinear term, the gradient table and the
+        dead-time buffer inlined, compiled (numba) where available and run as plain
+        Python otherwise.  The single-point train is the most simulated plant (every
+        tuning evaluation and RL rollout of the point-mass scenarios); at three states
+        numpy's per-call overhead dominates the general path.  ``tests/test_plants.py``
+        checks it against the general path and its compiled form against the Python one
+        bit for bit.  Needs the gradient as a table (or none): see :meth:`step`."""
         kern = self._kern
         if kern is None:
-            kern = self._kern = compiled(run_single) or False
-        if kern and (tab is not None or grad is None):
-            self._run_single_compiled(kern, w_cmd, k, z, order, tab is not None)
-            return
-        Phi, Gam, P1, P2 = self._sc_mats
-        h = self.h
-        h2 = 0.25 * h
-        if tab is not None:
-            xl, y0l, sl = tab
-        dists = self.disturbances
-        ca, cb, cc = self._ca0, self._cb0, self._cc0
-        mg, m0, minv = self._mg0, self._m0, self._minv0
-        hold = self.HOLD_SPEED_MPS
-        nb = self._buffer.shape[0]
-        if nb > 1:
-            bl = self._buf_list
-            if bl is None:
-                bl = self._buf_list = self._buffer[:, 0].tolist()
-        head = self._head
-        if z is None:
-            z = self.z.tolist()
-        if order:
-            z0, z1, z2 = z
-            (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = Phi
-            g0, g1, g2 = Gam
-            q0, q1, q2 = P1
-            r0, r1, r2 = P2
-        else:
-            z0, z1 = z
-            z2 = 0.0
-            (p00, p01), (p10, p11) = Phi
-            g0, g1 = Gam
-            q0, q1 = P1
-            r0, r1 = P2
-
-        def nl(pos: float, vel: float, time: float) -> float:
-            """N(z, t): −(Davis + gradient + disturbances)/M' per unit mass (_nl_single)."""
-            av = vel if vel >= 0.0 else -vel
-            f = ca + cb * av + cc * av * av
-            f = f if vel > 0 else (-f if vel < 0 else 0.0)
-            if tab is not None:
-                j = bisect_right(xl, pos) - 1
-                f += mg * (y0l[j] + sl[j] * (pos - xl[j]))
-            elif grad is not None:
-                f += mg * float(grad(pos))
-            if dists:
-                wd = 0.0
-                for dist in dists:
-                    wd += dist.accel(time)
-                f += m0 * wd
-            return -f * minv
-
-        t = self.t
-        pl = self._p_last
-        p_last = pl if type(pl) is float else float(pl[0])
-        wt = wb = 0.0
-        stopped = self.stopped
-        w = w_cmd
-        for _ in range(k):
-            if nb > 1:
-                bl[head] = w_cmd
-                head = (head + 1) % nb
-                w = bl[head]
-            if stopped:
-                F = w if order == 0 else z2
-                if tab is not None:
-                    j = bisect_right(xl, z0) - 1
-                    g_f = mg * (y0l[j] + sl[j] * (z0 - xl[j]))
-                else:
-                    g_f = mg * float(grad(z0)) if grad is not None else 0.0
-                if F > g_f + ca:
-                    stopped = False
-                else:
-                    if order:
-                        z2 = p22 * z2 + g2 * w
-                    z1 = 0.0
-                    t += h
-                    p_last = 0.0
-                    continue
-            n0 = nl(z0, z1, t)  # N(z, t)
-            # a = Φ z + Γ w + h φ1 N(z)  (row by row, the operations of the matrix code)
-            if order:
-                a0 = p00 * z0 + p01 * z1 + p02 * z2 + g0 * w + q0 * n0
-                a1 = p10 * z0 + p11 * z1 + p12 * z2 + g1 * w + q1 * n0
-                a2 = p20 * z0 + p21 * z1 + p22 * z2 + g2 * w + q2 * n0
-            else:
-                a0 = p00 * z0 + p01 * z1 + g0 * w + q0 * n0
-                a1 = p10 * z0 + p11 * z1 + g1 * w + q1 * n0
-            dn = nl(a0, a1, t + h) - n0  # N(a, t + h) − N(z, t)
-            # z_new = a + h φ2 (n1 − n0)
-            s_new = a0 + r0 * dn
-            v_new = a1 + r1 * dn
-            F_old = w if order == 0 else z2
-            if order:
-                z2 = a2 + r2 * dn
-            p1 = (w if order == 0 else z2) * v_new
-            tot = p_last + p1
-            mag = abs(p_last) + abs(p1)
-            wt += h2 * (mag + tot)
-            wb += h2 * (mag - tot)
-            p_last = p1
-            if z1 > 0.0 and 0.0 < v_new < hold and v_new < z1 and F_old <= ca:
-                v_new = 0.0
-                stopped = True
-            elif z1 > 0.0 and v_new <= 0.0:
-                frac = z1 / (z1 - v_new)
-                s_new = z0 + 0.5 * z1 * frac * h
-                v_new = 0.0
-                stopped = True
-            z0, z1 = s_new, v_new
-            t += h
-        self._head = head
-        self.z = np.array([z0, z1, z2] if order else [z0, z1])
-        self.t = t
-        self.stopped = stopped
-        self._w_now = w
-        self._p_last = p_last
-        self.work_traction_J += wt
-        self.work_brake_J += wb
-
-    def _run_single_compiled(
-        self, kern, w_cmd: float, k: int, z: list[float] | None, order: int, has_tab: bool
-    ) -> None:
-        """:meth:`_run_single` through its compiled twin (:func:`._kernels.run_single`):
-        the same floats in, the same floats out."""
+            kern = self._kern = compiled(run_single, RUN_SINGLE_HELPERS) or run_single
+        order = self.actuator.order
         c = self._kconst
         if c is None:
             Phi, Gam, P1, P2 = self._sc_mats
@@ -709,22 +581,20 @@ class TrainPlant:
         if z is None:
             z = self.z.tolist()
         pl = self._p_last
-        st = np.array(
-            [
-                z[0],
-                z[1],
-                z[2] if order else 0.0,
-                self.t,
-                pl if type(pl) is float else float(pl[0]),
-                1.0 if self.stopped else 0.0,
-                w_cmd,
-                0.0,
-                0.0,
-            ]
-        )
+        st = [
+            z[0],
+            z[1],
+            z[2] if order else 0.0,
+            self.t,
+            pl if type(pl) is float else float(pl[0]),
+            1.0 if self.stopped else 0.0,
+            w_cmd,
+            0.0,
+            0.0,
+        ]
+        wd = []
         dists = self.disturbances
         if dists:  # the sums the loop adds at t_0 + j h (the times it reaches by t += h)
-            wd = []
             tj, h = self.t, self.h
             for _ in range(k + 1):
                 acc = 0.0
@@ -732,19 +602,27 @@ class TrainPlant:
                     acc += dist.accel(tj)
                 wd.append(acc)
                 tj += h
-            wdv = np.array(wd)
-        else:
-            wdv = _NO_DIST
         g = self.gradient_permil
-        if has_tab:
-            xs, y0, sl = g.x, g.y0, g.slope
+        buf = self._buffer[:, 0]
+        if kern is run_single:  # interpreted: Python floats and lists run it fastest
+            tab = self._grad_table() if g is not None else ([], [], [])
+            c_l = self._kconst_l
+            if c_l is None:
+                c_l = self._kconst_l = c.tolist()
+            bl = buf.tolist()
+            self._head = run_single(
+                st, bl, self._head, k, order, c_l, *tab, g is not None, wd, bool(dists)
+            )
+            buf[:] = bl
         else:
-            xs = y0 = sl = _NO_DIST
-        buf = self._buffer
-        self._head = kern(
-            st, buf[:, 0], self._head, k, order, c, xs, y0, sl, has_tab, wdv, bool(dists)
-        )
-        z0, z1, z2, t, p_last, stopped, w, wt, wb = st.tolist()
+            st = np.array(st)
+            tab = (g.x, g.y0, g.slope) if g is not None else (_NO_DIST,) * 3
+            wdv = np.array(wd) if dists else _NO_DIST
+            self._head = kern(
+                st, buf, self._head, k, order, c, *tab, g is not None, wdv, bool(dists)
+            )
+            st = st.tolist()
+        z0, z1, z2, t, p_last, stopped, w, wt, wb = st
         self.z = np.array([z0, z1, z2] if order else [z0, z1])
         self.t = t
         self.stopped = stopped != 0.0
