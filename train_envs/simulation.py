@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -266,10 +266,16 @@ class ClosedLoop:
             self.truncated = True
         self.done = self.terminated or self.truncated
 
-    def columns(self, k0: int, k1: int) -> dict[str, np.ndarray]:
-        """Views of the recorded columns for control steps ``k0 .. k1-1`` (no copy)."""
+    def columns(
+        self, k0: int, k1: int, names: Sequence[str] | None = None
+    ) -> dict[str, np.ndarray]:
+        """Views of the recorded columns (all, or ``names``) for control steps
+        ``k0 .. k1-1`` (no copy)."""
         self._flush()
-        return {name: arr[k0:k1] for name, arr in self._cols.items()}
+        cols = self._cols
+        if names is None:
+            return {name: arr[k0:k1] for name, arr in cols.items()}
+        return {name: cols[name][k0:k1] for name in names}
 
     # ---------------------------------------------------------------- results
     def arrays(self) -> dict[str, np.ndarray]:

@@ -61,6 +61,8 @@ from train_envs.scenarios import DisturbanceSpec, Scenario, get_scenario, real_l
 from train_envs.simulation import ClosedLoop
 
 OBJECTIVES = ("tracking", "jerk", "energy", "violation", "stop", "punctuality")
+#: the recorded columns a step's reward reads
+_STEP_COLUMNS = ("v_mps", "a_mps2", "v_ref_mps", "v_limit_mps", "saturated")
 OBS_CLIP = 10.0
 _INV_GRAD = 1.0 / 30.0  # gradient feature scale [1/‰]
 
@@ -431,25 +433,29 @@ class TrainTuningEnv(gym.Env):
         # of each control period)
         k1 = loop.k
         j0 = k0 - 1 if k0 > 0 else 0  # one row more: the previous step's last row
-        rows = loop.columns(j0, k1)
+        rows = loop.columns(j0, k1, _STEP_COLUMNS)
         i0 = k0 - j0
-        v_all, a_all = rows["v_mps"], rows["a_mps2"]
-        v = v_all[i0:]
-        e_v = rows["v_ref_mps"][i0:] - v
-        tracking = float(e_v @ e_v) * dt
-        a = a_all[i0:]
-        if i0:  # = np.diff(a, prepend=self._a_prev): the previous row holds a_prev
-            jerk = (a - a_all[:-1]) / dt
-        else:
-            jerk = np.diff(a, prepend=self._a_prev) / dt
-        jerk_cost = float(jerk @ jerk) * dt
-        self._a_prev = float(a[-1])
-        lim, sat = rows["v_limit_mps"][i0:], rows["saturated"][i0:]
-        if any(sat.tolist()) or not all(
-            x - y <= 0.0 for x, y in zip(v.tolist(), lim.tolist(), strict=True)
-        ):
-            over = np.maximum(v - lim, 0.0)
-            violation = float(over.sum() + sat.sum()) * dt
+        # a handful of rows: Python floats beat numpy's per-call overhead here
+        v = rows["v_mps"].tolist()[i0:]
+        a_all = rows["a_mps2"].tolist()
+        tracking = 0.0
+        for x, y in zip(rows["v_ref_mps"].tolist()[i0:], v, strict=True):
+            tracking += (x - y) * (x - y)
+        tracking *= dt
+        prev = a_all[0] if i0 else self._a_prev  # the previous row holds a_prev
+        jerk_cost = 0.0
+        for x in a_all[i0:]:
+            jk = (x - prev) / dt
+            jerk_cost += jk * jk
+            prev = x
+        jerk_cost *= dt
+        self._a_prev = prev
+        lim, sat = rows["v_limit_mps"].tolist()[i0:], rows["saturated"].tolist()[i0:]
+        if any(sat) or not all(x - y <= 0.0 for x, y in zip(v, lim, strict=True)):
+            # overspeed (NaN counts) plus saturated steps
+            d = [x - y for x, y in zip(v, lim, strict=True)]
+            over = sum(e if not e <= 0.0 else 0.0 for e in d)
+            violation = (over + sum(sat)) * dt
         else:  # the usual case, no overspeed, no saturation (NaN takes the branch above)
             violation = 0.0
         p = loop.plant
