@@ -473,3 +473,25 @@ def test_compiled_kernels_match_the_numpy_path(monkeypatch):
     assert holds2 == holds
     stop, stop2 = loop.metrics()["stop_error_m"], loop2.metrics()["stop_error_m"]
     assert stop2 == pytest.approx(stop, abs=1e-9)
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_non_finite_measurement_is_reported_by_name(monkeypatch, jit):
+    """A NaN speed is rejected with an error that names the measurement, before any
+    stage data or QP is formed (compiled and numpy paths alike)."""
+    import train_envs.controllers.tube_mpc as tube
+
+    if not jit:
+        monkeypatch.setattr(tube, "kernels", lambda: None)
+    sc = get_scenario("paper001_stopping")
+    for ctrl in (RobustSelfTriggeredMPC(sc, N=5), tube.TubeMPC(sc, N=5)):
+        loop = ClosedLoop(sc, ctrl)
+        loop.reset(seed=0)
+        for _ in range(12):
+            loop.step()
+        obs = loop.observe()
+        obs.v_mps = float("nan")
+        if isinstance(ctrl, RobustSelfTriggeredMPC):
+            ctrl._hold_left = 0  # a trigger now
+        with pytest.raises(ValueError, match="non-finite measurement.*v_mps=nan"):
+            ctrl.compute(obs)

@@ -846,6 +846,11 @@ class TubeMPC(Controller):
             self._pend = [u_prev] * l
             self._initialised = True
         a = (fo.item() if fo.size == 1 else float(fo.sum())) / mi
+        if not math.isfinite(obs.s_m + obs.v_mps + a + u_prev):
+            raise ValueError(
+                f"{self.name}: non-finite measurement (s_m={obs.s_m}, v_mps={obs.v_mps}, "
+                f"forces_N={fo.tolist()}, u_prev_N={up.tolist()}); all must be finite"
+            )
         h[0] = 1.0
         h[1] = obs.s_m
         h[2] = obs.v_mps
