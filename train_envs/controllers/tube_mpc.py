@@ -595,14 +595,21 @@ class TubeMPC(Controller):
         return terminal_weight(fb.A_cl, fb.K, np.diag([p["q_s"], p["q_v"], 0.0, 0.0]), p["r_du"])
 
     def _cost_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Core weights: Q on [s, v, u], S = r_du on Δu, terminal ``P − CᵀQC`` on ξ."""
+        """Core weights: Q on [s, v, u], S = r_du on Δu, terminal ``P − CᵀQC`` on ξ (made
+        once per parameter change and model: every problem of the family shares them)."""
+        key = (self._current_keys()[0], self._model)
+        hit = self.__dict__.get("_cost_cache")
+        if hit is not None and hit[0][0] is key[0] and hit[0][1] is key[1]:
+            return hit[1]
         p = self._params
         fb = self._feedback()
         Qx = np.diag([p["q_s"], p["q_v"], 0.0, 0.0])
         P = terminal_weight(fb.A_cl, fb.K, Qx, p["r_du"])
         Kr = fb.K.reshape(1, 4)
         P_core = fb.A_cl.T @ P @ fb.A_cl + p["r_du"] * (Kr.T @ Kr)  # = P − Qx exactly
-        return np.diag([p["q_s"], p["q_v"], 0.0]), np.array([[p["r_du"]]]), P_core
+        out = (np.diag([p["q_s"], p["q_v"], 0.0]), np.array([[p["r_du"]]]), P_core)
+        self._cost_cache = (key, out)
+        return out
 
     def _stage_scales(self, M: int) -> dict[str, np.ndarray] | None:
         """Per-stage multipliers of Q and of the increment weight S (RSMPC's 1/β)."""
