@@ -54,8 +54,7 @@ penalty can only raise the optimum -- so a bound above ``J^1`` rejects ``M`` wit
 solve (the screen; when the optimum was feasible the bound *is* the cost), and only the
 rest goes through the QP core (bounds, the core's own exact shortcut, OSQP).  With
 exact costs the undisturbed run holds 1 step at 300 of 372 triggers (β = 3); under paper
-001's disturbance the counts are unchanged from the OSQP-only runs (README table).  The
-``M − 1`` steps after a trigger cost nothing.
+001's disturbance the counts are unchanged from the OSQP-only runs (README table).
 
 Info per step: ``triggered`` (bool), ``hold_steps`` (M of the current hold),
 ``triggers`` (so far in the episode), ``candidates`` (hold lengths examined this step),
@@ -153,7 +152,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
                 "slack_max": 0.0,
             }
         data = self._stage_data(obs)
-        g = data["h"]
+        h = data["h"]  # the stage vector the closed forms read
         relaxed0 = self._relaxed
         sols: dict[int, MPCSolution] = {}  # solved through the QP core
         closed: dict[int, tuple] = {}  # optimum in closed form (no row binds)
@@ -162,7 +161,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
         def accept(M: int, J1: float) -> bool:
             nonlocal screened
             prob = self._problem(M)
-            ev = self._closed_form(prob, g)
+            ev = self._closed_form(prob, h)
             if ev is not None:
                 if ev[0] > J1:  # J^M >= its unconstrained cost > J^1: rejected
                     screened += 1
@@ -229,7 +228,7 @@ class RobustSelfTriggeredMPC(TubeMPC):
         iters = sum(s.iterations for s in sols.values())
         if best in closed:
             ev = closed[best]
-            du0 = self._adopt(self._problems[best], g)
+            du0 = self._adopt(self._problems[best], h)
             fallback, slack, status, J = False, 0.0, 1, ev[0]
         else:
             sol = sols[best]
