@@ -54,11 +54,20 @@ def compiled(
 
             glb = dict(func.__globals__)
             for name, helper in (helpers or {}).items():
-                glb[name] = numba.njit(cache=True, nogil=True)(_rebind(helper, glb))
-            _CACHE[func] = numba.njit(cache=True, nogil=True)(_rebind(func, glb))
+                glb[name] = _njit(numba, _rebind(helper, glb))
+            _CACHE[func] = _njit(numba, _rebind(func, glb))
         else:
             _CACHE[func] = None
     return _CACHE[func]
+
+
+def _njit(numba: Any, func: Callable[..., Any]) -> Callable[..., Any]:
+    """``numba.njit`` with the disk cache where numba finds a writable place for it (the
+    package's ``__pycache__`` or the user's cache directory), without it otherwise."""
+    try:
+        return numba.njit(cache=True, nogil=True)(func)
+    except RuntimeError:  # "no locator available": compile in every process instead
+        return numba.njit(nogil=True)(func)
 
 
 def _rebind(func: Callable[..., Any], glb: dict[str, Any]) -> Callable[..., Any]:

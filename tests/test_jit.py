@@ -1,0 +1,45 @@
+"""The optional compilation helper (train_envs._jit)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from train_envs import _jit
+
+
+def _source_function(src: str, name: str):
+    """A function with no source file (numba cannot cache it on disk)."""
+    glb: dict = {}
+    exec(src, glb)  # noqa: S102 - test fixture
+    return glb[name]
+
+
+def test_compiled_twin_calls_compiled_helpers_and_leaves_python_alone():
+    if not _jit.enabled():
+        pytest.skip("numba not available")
+    twice = _source_function("def twice(x):\n    return 2.0 * x\n", "twice")
+    outer = _source_function("def outer(xs):\n    return twice(xs[0]) + 1.0\n", "outer")
+    outer.__globals__["twice"] = twice
+    fast = _jit.compiled(outer, {"twice": twice})
+    assert fast is not None and fast is not outer
+    assert fast(np.array([3.0])) == outer([3.0]) == 7.0
+    # the Python function still calls the Python helper (bound in its own namespace)
+    assert outer.__globals__["twice"] is twice
+    assert _jit.compiled(outer) is fast  # made once per process
+
+
+def test_compiled_is_none_when_disabled(monkeypatch):
+    monkeypatch.setenv("TRAIN_ENVS_NO_JIT", "1")
+    f = _source_function("def f(x):\n    return x\n", "f")
+    assert not _jit.enabled()
+    assert _jit.compiled(f) is None
+
+
+def test_bisect_right_matches_the_standard_library():
+    import bisect
+
+    xs = [-1e30, 0.0, 1.0, 1.0, 2.5, 7.0]
+    arr = np.array(xs)
+    for x in [-2e30, -1.0, 0.0, 0.5, 1.0, 2.5, 3.0, 7.0, 8.0, float("inf")]:
+        assert _jit.bisect_right(arr, x) == bisect.bisect_right(xs, x)
