@@ -104,15 +104,15 @@ def _fill_reference(
 
 
 def _closed_form(
-    T: np.ndarray, cols: np.ndarray, h: np.ndarray, b: np.ndarray, nz: int, nchk: int
+    T: np.ndarray, cols: np.ndarray, h: np.ndarray, b: np.ndarray, nchk: int
 ) -> tuple[float, bool]:
-    """``(J, feasible)`` of one candidate: ``out = T[nz:] @ h[cols]``, feasible when
-    every margin ``b − out[:nchk]`` is ``>= 0`` (NaN is not), ``J = ‖out[nchk:]‖²``."""
+    """``(J, feasible)`` of one candidate: ``out = T @ h[cols]``, feasible when every
+    margin ``b − out[:nchk]`` is ``>= 0`` (NaN is not), ``J = ‖out[nchk:]‖²``."""
     nc = cols.size
     hv = np.empty(nc)
     for c in range(nc):
         hv[c] = h[cols[c]]
-    out = np.dot(T[nz:], hv)
+    out = np.dot(T, hv)
     feasible = True
     for r in range(nchk):
         if not (b[r] - out[r] >= 0.0):

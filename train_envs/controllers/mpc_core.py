@@ -392,9 +392,6 @@ class UnconstrainedGain:
         return u
 
 
-# ---------------------------------------------------------------------------
-# terminal-cost helpers
-# ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class UnconstrainedAffine:
     r"""The unconstrained optimum of a :class:`LinearMPC` as explicit functions of its data.
@@ -424,6 +421,9 @@ class UnconstrainedAffine:
     ntheta: int
 
 
+# ---------------------------------------------------------------------------
+# terminal-cost helpers
+# ---------------------------------------------------------------------------
 def terminal_cost_dare(
     A: ArrayLike, B: ArrayLike, Qx: ArrayLike, R: ArrayLike
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1319,11 +1319,7 @@ class LinearMPC:
             Gth[idx] = GK @ St
             Gx[idx] = np.tile(g.G @ C if g.on == "y" else g.G, (K, 1))
         st = self._struct = SimpleNamespace(
-            Phi=Phi,
-            Gam=Gam,
-            GamD=GamD,
             Tu=Tu,
-            Du=Du,
             Tz=Tz,
             Cb=Cb,
             Sx=Sx,
@@ -1513,7 +1509,8 @@ class LinearMPC:
         self._Cpinv = S_.Cpinv
         # condensed data for gain_unconstrained(), the refinement and the fallback
         self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
-        self._LwEz = Lw @ Ez  # weighted residuals e = LwEz z + Lth_c theta
+        # weighted residuals e = LwEz z + Lth_c theta (unconstrained_affine's cost)
+        self._LwEz = None if sparse else Lw @ Ez
         self._Xth, self._Sx = Xth, Sx
 
     def _q_init(self) -> np.ndarray:
@@ -2020,7 +2017,7 @@ class LinearMPC:
         nz = self._nz
         if self._unc_minimiser(np.zeros(nz), False, self._Lb0) is None:
             return None
-        mHinv, _, H, reduced = self._unc
+        mHinv, _, _, reduced = self._unc
         key = None if self._zdu else self._pin_key
         if key is None:
             K = mHinv

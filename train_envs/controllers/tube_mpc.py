@@ -109,8 +109,9 @@ dead-time predicted position (eq. 9 is translation invariant in ``s``), which ke
 the QP data O(1).  The QPs are built once per problem structure and kept across
 episodes; :meth:`LinearMPC.reset_solver` at every reset keeps runs reproducible per
 seed.  Each step first evaluates the exact unconstrained optimum in closed form: it is
-affine in the step's stage vector (``[1, ξ_0, s_o, ξ_s, resistance, v_lim]`` along the
-longest horizon), and so are the tightened rows and the weighted cost residuals
+affine in the step's stage vector (the measured state, the commands in the dead time,
+and along the longest horizon the reference, the resistance at it and the speed limit;
+:meth:`TubeMPC._stage_data`), and so are the tightened rows and the weighted cost residuals
 (:meth:`LinearMPC.unconstrained_affine` composed with that vector once per weight or W
 change); when no row binds it is the QP's optimum and the core is not called
 (:meth:`LinearMPC.adopt_unconstrained` keeps its warm start and fallback plan).  On
@@ -474,10 +475,11 @@ class _Problem:
 class _Explicit:
     """One problem's unconstrained optimum as affine maps of the trigger's stage vector.
 
-    ``out = T @ g[cols]`` stacks the decision ``z`` (``nz`` rows), the constraint rows
-    written as ``row <= b`` (``nchk`` rows: increment box both sides, the tightened
-    ``s``, ``v``, command rows of every stage, the terminal set) and the weighted cost
-    residuals (``J = ‖r‖²``); ``Umap @ g[cols]`` is the input plan (None: it is ``z``).
+    ``out = T @ h[cols]`` (``h`` of :meth:`TubeMPC._stage_data`) stacks the constraint
+    rows written as ``row <= b`` (``nchk`` rows: first the decision ``z`` itself, ``nz``
+    rows, as the upper side of the increment box, then its lower side, the tightened
+    ``s``, ``v``, command rows of every stage and the terminal set) and the weighted cost
+    residuals (``J = ‖r‖²``); ``Umap @ h[cols]`` is the input plan (None: it is ``z``).
     """
 
     cols: np.ndarray
@@ -1052,7 +1054,7 @@ class TubeMPC(Controller):
         H = self._fold(np.vstack([Gb, Gv]))
         Hz, Hs, Hv, Hu = H[:Np], H[Np : 2 * Np], H[2 * Np : 3 * Np], H[3 * Np : 4 * Np]
         Ht, Hr, Hvl = H[4 * Np : 4 * Np + nb], H[4 * Np + nb : -Np], H[-Np:]
-        rows = [Hz, Hz, -Hz, Hs, -Hv, Hvl, -Hu, Hu, Ht, Hr]
+        rows = [Hz, -Hz, Hs, -Hv, Hvl, -Hu, Hu, Ht, Hr]  # (z's rows are its upper bounds)
         b = [prob.du, prob.du, ymax[:, 0], -ymin[:, 1], -prob.tau_v, -ymin[:, 2], ymax[:, 2]]
         if nb:
             b.append(np.concatenate([np.full(nt, self._s_max), np.zeros(nb - nt)]) - prob.tau_term)
@@ -1085,8 +1087,8 @@ class TubeMPC(Controller):
             return None
         kern = self._kern
         if kern is not None:
-            return kern.closed_form(e.T, e.cols, h, e.b, e.nz, e.nchk)
-        out = np.dot(e.T[e.nz :], h[e.cols])
+            return kern.closed_form(e.T, e.cols, h, e.b, e.nchk)
+        out = np.dot(e.T, h[e.cols])
         r = out[e.nchk :]
         return float(np.dot(r, r)), bool(_min_reduce(e.b - out[: e.nchk]) >= 0.0)
 

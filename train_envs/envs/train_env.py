@@ -440,7 +440,8 @@ class TrainTuningEnv(gym.Env):
         a_all = rows["a_mps2"].tolist()
         tracking = 0.0
         for x, y in zip(rows["v_ref_mps"].tolist()[i0:], v, strict=True):
-            tracking += (x - y) * (x - y)
+            e = x - y
+            tracking += e * e
         tracking *= dt
         prev = a_all[0] if i0 else self._a_prev  # the previous row holds a_prev
         jerk_cost = 0.0

@@ -233,24 +233,28 @@ class TrainPlant:
             )
         ]
         self._grad_src: object = None
-        self._kern = None  # compiled single-car step (False: not available)
-        self._kconst: np.ndarray | None = None
-        self._kconst_l: list[float] | None = None
+        self._kern = None  # the single-car step, compiled or not (made on first use)
         self._grad_lists: tuple[list[float], list[float], list[float]] | None = None
         # the lead car's acceleration read-out of a single car needs no matrix product:
         # its row of [A B] has one non-zero entry (m'^-1 on the force state, or on the
         # input for an ideal actuator), the other products being exact zeros
         self._lead_fast = n == 1 and self.davis_variation is None
         self._acc_coef = float(A[n, 2 * n]) if order else float(B[n, 0])
-        # float copies of the ETD2 matrices for the single-car fast path
+        # constants of the single-car fast path (layout: plants._kernels.C_*), as an array
+        # for the compiled step and as floats for the interpreted one
         self._scalar_ok = n == 1 and self.davis_variation is None and self.actuator.order < 2
         ig = self._integ
-        self._sc_mats = (
-            ig.Phi.tolist(),
-            ig.Gamma[:, 0].tolist(),
-            ig.P1[:, 0].tolist(),
-            ig.P2[:, 0].tolist(),
+        self._kconst = np.concatenate(
+            [
+                [self.h, self._ca0, self._cb0, self._cc0, self._mg0, self._m0, self._minv0],
+                [self.HOLD_SPEED_MPS],
+                ig.Phi.ravel(),
+                ig.Gamma[:, 0],
+                ig.P1[:, 0],
+                ig.P2[:, 0],
+            ]
         )
+        self._kconst_l = self._kconst.tolist()
 
     def _grad_table(self) -> tuple[list[float], list[float], list[float]] | None:
         """``(x, y0, slope)`` lists of the gradient look-up when it is a :class:`PiecewiseLinear`.
@@ -567,17 +571,6 @@ class TrainPlant:
         if kern is None:
             kern = self._kern = compiled(run_single, RUN_SINGLE_HELPERS) or run_single
         order = self.actuator.order
-        c = self._kconst
-        if c is None:
-            Phi, Gam, P1, P2 = self._sc_mats
-            c = self._kconst = np.array(
-                [self.h, self._ca0, self._cb0, self._cc0, self._mg0, self._m0, self._minv0]
-                + [self.HOLD_SPEED_MPS]
-                + [x for row in Phi for x in row]
-                + list(Gam)
-                + list(P1)
-                + list(P2)
-            )
         if z is None:
             z = self.z.tolist()
         pl = self._p_last
@@ -606,12 +599,18 @@ class TrainPlant:
         buf = self._buffer[:, 0]
         if kern is run_single:  # interpreted: Python floats and lists run it fastest
             tab = self._grad_table() if g is not None else ([], [], [])
-            c_l = self._kconst_l
-            if c_l is None:
-                c_l = self._kconst_l = c.tolist()
             bl = buf.tolist()
             self._head = run_single(
-                st, bl, self._head, k, order, c_l, *tab, g is not None, wd, bool(dists)
+                st,
+                bl,
+                self._head,
+                k,
+                order,
+                self._kconst_l,
+                *tab,
+                g is not None,
+                wd,
+                bool(dists),
             )
             buf[:] = bl
         else:
@@ -619,7 +618,16 @@ class TrainPlant:
             tab = (g.x, g.y0, g.slope) if g is not None else (_NO_DIST,) * 3
             wdv = np.array(wd) if dists else _NO_DIST
             self._head = kern(
-                st, buf, self._head, k, order, c, *tab, g is not None, wdv, bool(dists)
+                st,
+                buf,
+                self._head,
+                k,
+                order,
+                self._kconst,
+                *tab,
+                g is not None,
+                wdv,
+                bool(dists),
             )
             st = st.tolist()
         z0, z1, z2, t, p_last, stopped, w, wt, wb = st
