@@ -43,3 +43,21 @@ def test_bisect_right_matches_the_standard_library():
     arr = np.array(xs)
     for x in [-2e30, -1.0, 0.0, 0.5, 1.0, 2.5, 3.0, 7.0, 8.0, float("inf")]:
         assert _jit.bisect_right(arr, x) == bisect.bisect_right(xs, x)
+
+
+def test_registered_twin_is_chosen_by_the_table(monkeypatch):
+    f = _source_function("def triple(x):\n    return 3.0 * x\n", "triple")
+    assert _jit.register("test.triple", f) is f
+    assert _jit.implementation("test.triple", compiled_twin=False) is f
+    if _jit.enabled():
+        fast = _jit.implementation("test.triple")
+        assert fast is not f and fast(2.0) == f(2.0) == 6.0
+        assert _jit.implementation("test.triple", compiled_twin=True) is fast
+    monkeypatch.setenv("TRAIN_ENVS_NO_JIT", "1")
+    _jit._CACHE.pop(f, None)
+    assert _jit.implementation("test.triple") is f
+    with pytest.raises(RuntimeError, match="unavailable"):
+        _jit.implementation("test.triple", compiled_twin=True)
+    with pytest.raises(KeyError, match="no registered twin"):
+        _jit.implementation("test.nothing")
+    del _jit.TWINS["test.triple"]

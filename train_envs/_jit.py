@@ -8,6 +8,10 @@ on disk (``cache=True``): only the first process after an install or a change of
 source compiles.  No fast-math flags: the compiled loops do the same IEEE operations in
 the same order as the Python source.
 
+Call sites do not branch on compilation: a module registers its reference function with
+:func:`register` (the table :data:`TWINS`), and call sites take
+:func:`implementation` (the compiled twin or the reference, chosen once per process).
+
 The helpers below are written once and called from the kernels of
 :mod:`train_envs.controllers._kernels` and :mod:`train_envs.plants._kernels`.  numba's
 disk cache checks only the file of the compiled function itself: after changing a helper
@@ -20,6 +24,7 @@ from __future__ import annotations
 import os
 import types
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -89,3 +94,58 @@ def bisect_right(xs: np.ndarray, x: float) -> int:
         else:
             hi = mid
     return lo
+
+
+# ------------------------------------------------------------------ the table of twins
+@dataclass(frozen=True)
+class Twin:
+    """A reference implementation and the source of its compiled twin.
+
+    ``reference`` is the readable implementation and the fallback; ``source`` (default:
+    ``reference`` itself) is the plain-Python function numba compiles, with the same
+    signature and the same floating-point operations; ``helpers`` are the functions it
+    calls by global name (see :func:`compiled`).
+    """
+
+    name: str
+    reference: Callable[..., Any]
+    source: Callable[..., Any]
+    helpers: Mapping[str, Callable[..., Any]]
+
+
+#: name -> twin; each module that defines a reference registers it next to it
+TWINS: dict[str, Twin] = {}
+
+
+def register(
+    name: str,
+    reference: Callable[..., Any],
+    *,
+    source: Callable[..., Any] | None = None,
+    helpers: Mapping[str, Callable[..., Any]] | None = None,
+) -> Callable[..., Any]:
+    """Register ``reference`` (and the source of its compiled twin) under ``name``;
+    returns ``reference`` so it can be used as a decorator's result. Idempotent."""
+    TWINS[name] = Twin(name, reference, source or reference, dict(helpers or {}))
+    return reference
+
+
+def implementation(name: str, *, compiled_twin: bool | None = None) -> Callable[..., Any]:
+    """The implementation of ``name`` call sites use: the compiled twin where numba is
+    available and not disabled (``TRAIN_ENVS_NO_JIT=1``), else the reference.
+
+    ``compiled_twin=True`` / ``False`` asks for one of the two explicitly (the public
+    switch of the equality tests); True raises ``RuntimeError`` where compilation is
+    unavailable.
+    """
+    if name not in TWINS:
+        raise KeyError(f"no registered twin {name!r}; registered: {', '.join(sorted(TWINS))}")
+    twin = TWINS[name]
+    if compiled_twin is False:
+        return twin.reference
+    fast = compiled(twin.source, twin.helpers)
+    if fast is None:
+        if compiled_twin:
+            raise RuntimeError(f"compiled twin of {name!r} unavailable (numba missing or disabled)")
+        return twin.reference
+    return fast
