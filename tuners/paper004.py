@@ -81,5 +81,6 @@ def reproduce_paper004(
             raise RuntimeError(f"{algo}: no feasible solution in {pop} x {iters} evaluations")
         tuned[f"mpc_{algo}"] = res.selected_params
     out = compare_paper004(tuned, holdout_seeds)
-    out.attrs["budget"] = f"{pop} x {iters} per tuner, train seeds {list(train_seeds)}"
+    budget = f"{pop} x {iters} per tuner, train seeds {list(train_seeds)}"
+    out.attrs = {"budget": budget, **out.attrs}
     return out
