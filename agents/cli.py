@@ -1,4 +1,4 @@
-"""``train-envs train`` and ``train-envs evaluate`` (wired into ``train_envs.cli``).
+"""``train-envs train`` and ``train-envs evaluate``: the agents' command line.
 
 Usage::
 
@@ -8,7 +8,8 @@ Usage::
         --params sqlite:///tuning.db:stop-mowoa --controller pid --episodes 5 --out out/eval
 
 ``add_agents_parsers(subparsers)`` adds both subcommands and sets ``func`` (an
-``args -> int`` exit code) on the parsed namespace. Heavy imports happen only when a
+``args -> int`` exit code) on the parsed namespace; ``train-envs`` finds it through the
+``agents`` entry point of the group ``train_envs.cli``. Heavy imports happen only when a
 command runs.
 """
 

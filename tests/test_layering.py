@@ -3,7 +3,8 @@ including those inside functions).
 
 plants / lines / trains → mpc engine → controllers → scenarios → runner → envs →
 (reproductions, CLI) → tuners → agents.  Nothing imports upward and there is no
-import cycle between modules.
+import cycle between modules; the layers above train_envs add their subcommands and
+reproductions through entry points, not imports.
 """
 
 from __future__ import annotations
@@ -97,19 +98,7 @@ RULES = [
 ]
 
 
-#: rules the current tree still breaks (the CLI and the paper 004 reproduction import
-#: the tuners); removed as the tree is fixed
-KNOWN_BROKEN = {"train_envs"}
-
-
-@pytest.mark.parametrize(
-    "importer,forbidden",
-    [
-        pytest.param(*r, marks=pytest.mark.xfail(strict=True)) if r[0] in KNOWN_BROKEN else r
-        for r in RULES
-    ],
-    ids=[r[0] for r in RULES],
-)
+@pytest.mark.parametrize("importer,forbidden", RULES, ids=[r[0] for r in RULES])
 def test_nothing_imports_upward(importer, forbidden):
     bad = sorted(
         f"{m} -> {t}"
@@ -121,7 +110,6 @@ def test_nothing_imports_upward(importer, forbidden):
     assert not bad, "upward imports:\n" + "\n".join(bad)
 
 
-@pytest.mark.xfail(strict=True, reason="train_envs.cli <-> tuners.cli <-> agents.cli")
 def test_no_import_cycle():
     # Tarjan's strongly connected components over the module graph
     index: dict[str, int] = {}

@@ -1,4 +1,11 @@
-"""Command-line interface: ``train-envs list | simulate`` (more subcommands per issue)."""
+"""Command-line interface: ``train-envs list | reproduce | simulate`` and the subcommands
+that the packages built on train_envs register (``tune``; ``train``, ``evaluate``).
+
+Those are found as entry points of the group ``train_envs.cli`` (see
+:mod:`train_envs.cli_args`): each is a function ``add(subparsers)`` that adds its
+subcommands and sets ``func`` (an ``args -> int`` exit code) on the parsed namespace.
+A ``ValueError`` raised by a command is printed as one ``error:`` line, exit code 2.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +15,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from train_envs.cli_args import key_values
+from train_envs.cli_args import CLI_GROUP, key_values, registered
+
+DESCRIPTION = (
+    "Gymnasium environments for automatic train operation: list the catalogue, run "
+    "closed-loop episodes, reproduce the papers' tables, tune and train."
+)
 
 
 def _parse_params(items: list[str] | None) -> dict[str, float]:
@@ -127,8 +139,26 @@ def cmd_envs(_args: argparse.Namespace) -> int:
     return 0
 
 
+def add_registered_commands(sub: argparse._SubParsersAction) -> list[str]:
+    """Add the subcommands of every ``train_envs.cli`` entry point; returns their names.
+
+    An entry point that cannot be imported is skipped with a one-line warning, so a
+    missing optional dependency of one package leaves the other commands working.
+    """
+    added = []
+    for name, ep in registered(CLI_GROUP).items():
+        try:
+            add = ep.load()
+        except ImportError as exc:
+            print(f"warning: train-envs: commands of {name!r} unavailable ({exc})", file=sys.stderr)
+            continue
+        add(sub)
+        added.append(name)
+    return added
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="train-envs", description=__doc__)
+    p = argparse.ArgumentParser(prog="train-envs", description=DESCRIPTION)
     sub = p.add_subparsers(dest="command", required=True)
     pl = sub.add_parser("list", help="list scenarios, controllers, trains and tracks")
     pl.add_argument(
@@ -138,12 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["all", "scenarios", "controllers", "trains", "tracks", "envs"],
     )
     pl.set_defaults(func=cmd_list)
-    from tuners.cli import add_tune_parser
-
-    add_tune_parser(sub)
-    from agents.cli import add_agents_parsers
-
-    add_agents_parsers(sub)  # train, evaluate
+    add_registered_commands(sub)  # tune; train, evaluate
     pr = sub.add_parser("reproduce", help="print our results beside a paper's tables")
     from train_envs.reproduce import list_reproductions
 

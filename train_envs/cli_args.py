@@ -1,11 +1,28 @@
-"""Argument parsing shared by every ``train-envs`` subcommand (simulate, tune, train, ...)."""
+"""Argument parsing shared by every ``train-envs`` subcommand (simulate, tune, train, ...),
+and the entry-point lookup through which the packages built on ``train_envs`` add theirs.
+
+Nothing here imports a layer above ``train_envs``: a subcommand or reproduction of the
+tuners or agents is found by name in the installed package metadata
+(``[project.entry-points."<group>"]`` in ``pyproject.toml``) and imported only when used.
+"""
 
 from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
 from typing import Any
+
+#: group of ``add(subparsers)`` functions that add subcommands to ``train-envs``
+CLI_GROUP = "train_envs.cli"
+#: group of ``reproduce_paperNNN(seed=0) -> DataFrame`` functions of ``train-envs reproduce``
+REPRODUCE_GROUP = "train_envs.reproduce"
+
+
+def registered(group: str) -> dict[str, EntryPoint]:
+    """The entry points of ``group`` by name, in name order (not loaded)."""
+    return {ep.name: ep for ep in sorted(entry_points(group=group), key=lambda ep: ep.name)}
 
 
 def parse_seeds(items: list[str] | None, flag: str = "--seeds") -> list[int] | None:

@@ -5,8 +5,9 @@ multi-objective whale optimisation), :class:`~tuners.pso.PSO` (scalarised PSO, 0
 comparator) and :class:`~tuners.pso.MOPSO`; pymoo's NSGA-II and MOEA/D as baselines.
 :func:`~tuners.run.tune` runs them on an env id with parallel evaluation
 (:mod:`tuners.backends`), an Optuna study per run and resumable checkpoints
-(:mod:`tuners.storage`); :mod:`tuners.plots` draws the results and
-:func:`~tuners.cli.add_tune_parser` adds ``train-envs tune``.
+(:mod:`tuners.storage`); :mod:`tuners.plots` draws the results,
+:func:`~tuners.cli.add_tune_parser` adds ``train-envs tune`` and
+:func:`~tuners.paper004.reproduce_paper004` is ``train-envs reproduce paper004``.
 
 Names are imported lazily (``import tuners`` stays cheap).
 """
@@ -37,6 +38,7 @@ _EXPORTS = {
     "run_weight_vectors": "tuners.run",
     "tune": "tuners.run",
     "add_tune_parser": "tuners.cli",
+    "reproduce_paper004": "tuners.paper004",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -1,4 +1,4 @@
-"""``train-envs tune``: the tuners' command line (wired into ``train_envs.cli``).
+"""``train-envs tune``: the tuners' command line.
 
 Usage::
 
@@ -7,7 +7,8 @@ Usage::
     train-envs tune show urban004-mowoa --storage sqlite:///runs.db [--out results/]
 
 ``add_tune_parser(subparsers)`` adds the subcommand to an argparse subparsers object and
-sets ``func`` (an ``args -> int`` exit code) on the parsed namespace.
+sets ``func`` (an ``args -> int`` exit code) on the parsed namespace; ``train-envs``
+finds it through the ``tuners`` entry point of the group ``train_envs.cli``.
 """
 
 from __future__ import annotations

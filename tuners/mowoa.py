@@ -33,73 +33,17 @@ is unambiguous (the paper writes A as a vector but tests its magnitude); ``r2`` 
 ``C``) is drawn per dimension (``vector_c=True``, the vector form of eq. 2.4) or per
 whale.
 
-Choices where 004 is silent (stated here, all configurable):
-
-* **Convergence factor.** Original WOA: :math:`a = 2 (1 − \tau)`. 004 replaces it by a
-  nonlinear decrease based on the natural constant with a rate factor :math:`k`; the
-  formula is lost, we use
-
-  .. math:: a(\tau) = a_\max \Bigl(1 − \bigl(\tfrac{e^{\tau} − 1}{e − 1}\bigr)^{k}\Bigr),
-            \qquad a_\max = 2,\ k = 1.72,
-
-  which starts at 2, ends at 0, equals the plain e-based curve for :math:`k = 1` and for
-  :math:`k > 1` keeps :math:`a > 1` (exploration by random search possible) for the first
-  ~76 % of the run before contracting quickly (``convergence="linear"`` restores WOA).
-  Progress :math:`\tau = (\mathrm{gen} − 2)/(\mathrm{gens} − 1)` over the move
-  generations (generation 1 is the initial sampling).
-* **Weight vectors.** :math:`N` = population size vectors on the unit simplex: evenly
-  spaced for 2 objectives, Das–Dennis when :math:`N` is a simplex-lattice size, else
-  Riesz s-energy (pymoo, fixed seed); components are floored at 1e-6. Each whale owns
-  one weight vector (subproblem); neighbourhoods are the ``n_neighbors`` closest vectors.
-* **Reference point and normalisation.** Tchebycheff subproblem :math:`j` (004 eq. of
-  §3.2, normalised form):
-
-  .. math:: g(x \mid \lambda^j, z^*) = \max_i \lambda^j_i\,
-            \frac{f_i(x) − z^*_i}{z^{nad}_i − z^*_i},
-
-  :math:`z^*` = the best value of every objective found so far over feasible evaluations
-  (004: "the minimum value of each objective up to the current point"). 004 normalises
-  by "tolerance values" (expected lower/upper bounds) that it does not give; with
-  ``f_bounds=(lower, upper)`` the scale :math:`z^{nad} − z^*` is ``upper − lower``.
-  By default (``normalization="archive"``) :math:`z^{nad}` is the worst value over the
-  current elite archive (the non-dominated set); an objective whose archive range
-  collapses keeps its previous :math:`z^{nad}`. ``"population"`` takes the worst over
-  elites and new positions, ``"none"`` uses raw objectives (Zhang & Li). On ZDT2 at
-  40 × 100 the run collapsed onto the f1 = 0 end in 3 of 10 seeds with ``"archive"``,
-  4 with ``"none"``, 9 with ``"population"``.
-* **Leaders and elites.** Every subproblem keeps an *elite* (its best solution so far);
-  whale :math:`i` uses its own elite as :math:`X^*` (one objective: the global best, i.e.
-  plain WOA). Whales move unconditionally, as in WOA; each new position may replace up
-  to ``n_replace`` elites of its neighbourhood (whole population with probability
-  1 − ``prob_neighbor``) whose Tchebycheff value it improves (MOEA/D update rule); the
-  random whale of the search move is drawn from the same pool. An external *elite
-  archive* keeps the feasible non-dominated solutions, truncated to ``archive_size``
-  (default: the population size) by removing the most crowded (crowding distance in
-  normalised objective space) one by one; it is the algorithm's result (``res.opt``).
-* **Constraints.** Feasibility first (Deb 2000): a solution with smaller constraint
-  violation wins; among feasible ones the smaller Tchebycheff value wins.
-* **Bounds.** New positions are clipped to the bounds (``bounds_repair="clip"``, as in
-  WOA); ``"bounce"`` puts an escaping component between its old value and the bound
-  (Price, Storn & Lampinen 2005) — worse on ZDT2 (10 of 10 seeds collapsed).
-* **Final pick** (004 §3.2): the subproblem weight vector with the largest cosine
-  similarity to the user's target weights :math:`w` is chosen, and the selected solution
-  is the Pareto solution that minimises that subproblem's Tchebycheff value (its elite)
-  (:func:`select_by_cosine`). :func:`tuners.run.tune` makes :math:`w` itself one of the
-  subproblems (it replaces the closest weight vector), so the search has a subproblem
-  for the user's preference and the pick is its elite. 004 also speaks of each
-  solution's own weight vector (formula lost); the ray-based
-  :math:`\lambda(x) \propto 1/(f'(x) − z'^*)` is not used: on a finite set it is
-  degenerate for solutions that attain the ideal value of some objectives (they look
-  "balanced" however bad the rest is).
-
-Note: WOA's ``|C X − X_i|`` distances are taken in the problem's coordinates, so the
-moves are biased towards the coordinate origin (a known WOA property); together with
-clipping this favours problems whose optimum lies at the origin or on a bound. ZDT1/2
-are such problems (x_2..n = 0 on the Pareto set): there MOWOA beats NSGA-II at equal
-evaluations, while on a ZDT1 with the Pareto set moved to x_2..n = 0.35 it falls far
-behind (``benchmarks/bench_tuners.py convergence``). The tuning problem
-(:mod:`tuners.problem`) uses the centred unit cube [−1, 1]ⁿ, whose origin is the middle
-of every parameter range (log-middle for log-scaled ones).
+Choices where 004 is silent (all configurable; the reasons and the measurements behind
+them are in ``docs/design/mowoa.md``): the convergence factor
+:math:`a(\tau) = 2\bigl(1 − ((e^{\tau} − 1)/(e − 1))^{k}\bigr)`, :math:`k = 1.72`, over
+the move generations (``convergence="linear"`` restores WOA); one weight vector per
+whale (evenly spaced, Das–Dennis or Riesz s-energy, floored at 1e-6); the normalised
+Tchebycheff value :math:`\max_i \lambda_i (f_i − z^*_i)/(z^{nad}_i − z^*_i)` with
+:math:`z^*` the best feasible value so far and :math:`z^{nad}` the worst over the elite
+archive (or ``f_bounds``); per-subproblem elites as leaders with the MOEA/D replacement
+rule and a crowding-truncated archive of feasible non-dominated solutions (the result,
+``res.opt``); feasibility first (Deb 2000); clipping to the bounds; the final pick by
+cosine similarity of the subproblem weights to the target (:func:`select_by_cosine`).
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ Paper 000's AFSMC comparator is ``afsmc000``, the adaptive fuzzy sliding-mode
 controller on the speed surface σ = e_v (000 gives no law; its E_x of 57–90 m rules out
 position feedback). Our library AFSMC (``afsmc``, sliding surface with position
 feedback) is added as an extra row per scenario, with no paper numbers beside it.
+Write-up and the measured table: ``docs/papers/paper000.md``.
 """
 
 from __future__ import annotations

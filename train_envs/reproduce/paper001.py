@@ -12,6 +12,7 @@ runs inside the ±50 cm window, command switches and RSMPC triggers (means per r
 beside the paper's numbers: PID 28.98 cm and ideal MPC 5.95 cm (§4 text); for RMPC and
 RSMPC the paper gives only Fig. 11 (no table): every N in 3…15 stops within ±50 cm,
 and RSMPC switches the command far less often than RMPC.
+Write-up and the measured table: ``docs/papers/paper001.md``.
 """
 
 from __future__ import annotations

@@ -32,6 +32,7 @@ Metrics (all cars, sampled at the 0.5 s control instants):
 
 :func:`run_paper002` returns the per-step trace used by :func:`paper002_figure`
 (002 Fig. 7 and 9: estimation error over time and the speed errors of both controllers).
+Write-up and the measured table: ``docs/papers/paper002.md``.
 """
 
 from __future__ import annotations

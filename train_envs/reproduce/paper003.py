@@ -30,15 +30,8 @@ and of the total actual force from case 1 (003 Fig. 7: "case 3 exactly tracks ca
 ``energy_accel_MJ``: the same over the acceleration window 100–600 s (003 Table 2
 approximates energy by ∫ Σ u_i v_i dt over the acceleration phase).
 
-**What can be compared.** 003's train data and weights' units were lost, so absolute
-values differ: its 29856 MJ for one acceleration of an 8-car train is ~100× the kinetic
-energy change of our assumed 320 t train, and our default weights settle the step in
-tens of seconds rather than 332 s. The claims checked are the directions: case 3 closer
-to case 1 than case 2, couplers within 0.07 m with the compensator, energy weight up →
-less energy and a longer acceleration, speed weight up → shorter acceleration and more
-energy. The coupler displacement of Table 2 does not follow 003's direction (see the
-printed values): in our model it is set by the undamped coupler modes excited at the
-step, which a slower, energy-weighted controller excites less.
+Why absolute values differ from 003's, and which claims are checked:
+``docs/papers/paper003.md``.
 """
 
 from __future__ import annotations
