@@ -30,7 +30,8 @@ class TubeSettings:
         feas_tol: largest slack [m, m/s, m/s²] still counted as feasible (RSMPC).
         overrun_allowance_m: the position row is ``s ≤ s_stop + allowance``; ``None`` =
             the scenario's stopping window (``extra["stop_window_m"]``, else 0.5 m).
-        v_min_row: add the soft row ``v ≥ 0`` (off: see the module docstring).
+        v_min_row: add the soft row ``v ≥ 0`` (off by default: near standstill the linear
+            prediction crosses zero speed; ``docs/design/tube_mpc.md``).
         terminal_speed_rows: the terminal set also checks ``v ≤ v_limit``.
         command_box: ``"soft"``, ``"hard"`` or ``"off"``: the tightened command box.
     """

@@ -91,6 +91,11 @@ class TubeMPC(Controller):
     [−w̄, w̄]; 0 gives the nominal MPC).  ``w̄`` (``w_bound_mps2``) defaults to the
     scenario's ``disturbance.random_bound_mps2`` when the factory gets a scenario that
     has one, else :data:`DEFAULT_W_BOUND_MPS2`.
+
+    Structural options: :class:`TubeSettings` (and ``qp_form``, ``osqp_settings`` of the
+    core).  ``compiled_twins``: None takes the compiled twins of the stage vector and the
+    closed forms where numba is available (the default), True / False asks for the
+    twins / their reference implementations (:func:`train_envs._jit.implementation`).
     """
 
     name = "rmpc"
@@ -300,6 +305,18 @@ class TubeMPC(Controller):
     # ------------------------------------------------------------------- reset
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)
+        self._reset_model_and_limits(ctx)
+        self._reset_stage_vector(ctx)
+        self._pend = [0.0] * self._l  # commands [m/s²] still in the dead time, oldest first
+        self._initialised = False
+        self._multi = ctx.n_inputs > 1
+        self._shares = input_shares(ctx) if self._multi else None
+        self._steps = 0
+        self._relaxed = 0  # solves whose terminal set had to be dropped
+
+    def _reset_model_and_limits(self, ctx: ControlContext) -> None:
+        """The stopping model and the untightened limits of the episode; the QPs are
+        kept across resets of the same problem structure."""
         tr = ctx.train
         self._mi = tr.inertial_mass_kg
         tau = ctx.actuator_tau_s if ctx.actuator_order >= 1 else 0.0
@@ -323,7 +340,13 @@ class TubeMPC(Controller):
             self._structure_key = key
         for prob in self._problems.values():  # reproducible per seed without a rebuild
             prob.mpc.reset_solver()
-        # per-step constants
+        self._limits = Limits(self._rate, self._u_lo, self._u_hi, self._v_min, self._s_max)
+
+    def _reset_stage_vector(self, ctx: ControlContext) -> None:
+        """The per-step constants of the stage vector (:mod:`.stage`) and the
+        implementations (compiled twin or reference) that fill and read it."""
+        tr = ctx.train
+        l = self._l  # noqa: E741
         self._prof = ctx.reference.profile
         self._distance_mode = ctx.reference.mode == "distance"
         self._grad = gradient_table(ctx.track) if ctx.track is not None else None
@@ -358,32 +381,18 @@ class TubeMPC(Controller):
         self._layout = StageLayout(
             self._n_grid, l, self._model, self._inv_dt, self._minus_E4, self._term_idx
         )
-        self._limits = Limits(self._rate, self._u_lo, self._u_hi, self._v_min, self._s_max)
         # a line with one speed limit (paper 001): the limit row is the same every step
         lims = None if ctx.track is None else np.unique(ctx.track.speed_limits_mps)
         self._v_lim_const = (
             np.full(self._n_grid, float(lims[0])) if lims is not None and lims.size == 1 else None
         )
         self._v_lim_none = np.full(self._n_grid, BIG)
-        self._pend = [0.0] * l  # commands [m/s²] still in the dead time, oldest first
-        self._initialised = False
-        self._multi = ctx.n_inputs > 1
-        self._shares = input_shares(ctx) if self._multi else None
-        self._steps = 0
-        self._relaxed = 0  # solves whose terminal set had to be dropped
 
     # -------------------------------------------------------------- per step
-    def _stage_data(self, obs: Observation) -> dict[str, Any]:
-        """The step's stage vector ``h`` (what the closed forms read); the QP core's
-        per-stage arrays are derived from it on first access (:meth:`_derive`).
-
-        ``h = [1, s, v, a, u_prev, u_pend (l), s_r, v_r, res, v_lim]``: the measured
-        state, the commands still in the dead time, and along the grid (index ``j`` is
-        time ``t_0 + j T``; ``t_0``: now, or the profile time at the train's position
-        for distance-indexed references) the reference position and speed, the nominal
-        resistance per unit inertial mass at the reference (``w_ff = −res``) and the
-        speed limit.
-        """
+    def _stage_data(self, obs: Observation) -> StageData:
+        """The step's stage vector ``h = [1, s, v, a, u_prev, u_pend (l), s_r, v_r, res,
+        v_lim]`` (:mod:`.stage`; what the closed forms read); the QP core's per-stage
+        arrays are derived from it on first access (:meth:`StageLayout.derive`)."""
         prof = self._prof
         t0 = float(prof.t_at_s(obs.s_m)) if self._distance_mode else obs.t_s
         ng, l = self._n_grid, self._l  # noqa: E741
