@@ -13,22 +13,27 @@ import itertools
 import numpy as np
 import pytest
 
+from train_envs import _jit
+from train_envs._jit import implementation
 from train_envs.controllers import make_controller
 from train_envs.controllers.mpc_core import LinearMPC
-from train_envs.controllers.rsmpc import RobustSelfTriggeredMPC
-from train_envs.controllers.tube_mpc import (
+from train_envs.controllers.tube import (
     ROW_DU,
     ROW_S,
     ROW_U,
     ROW_V,
+    RobustSelfTriggeredMPC,
     TubeMPC,
     stopping_model,
     terminal_weight,
     tube_feedback,
     tube_tightening,
 )
+from train_envs.controllers.tube.stage import fill_reference
+from train_envs.plants.lookup import gradient_table
 from train_envs.scenarios import DisturbanceSpec, get_scenario
 from train_envs.simulation import ClosedLoop, simulate
+from train_envs.trains import G
 
 W_BAR = 0.05
 HORIZONS = (3, 5, 10, 15)
@@ -418,73 +423,93 @@ def test_hold_decisions_use_exact_costs():
     assert np.median(costs) < 1e-4  # the costs compared really are this small
 
 
-def test_compiled_kernels_match_the_numpy_path(monkeypatch):
-    """The compiled stage vector equals the numpy path's bit for bit, the compiled
-    closed forms agree with it to rounding, and a run without the kernels (numba
-    missing or ``TRAIN_ENVS_NO_JIT=1``) takes the same decisions."""
-    import train_envs.controllers.tube_mpc as tube
+needs_jit = pytest.mark.skipif(not _jit.enabled(), reason="compiled twins unavailable")
 
+
+@needs_jit
+def test_stage_reference_twin_equals_its_reference_bit_for_bit():
+    """The compiled stage vector (reference position, speed and resistance along the
+    grid) equals the reference implementation's bit for bit, beyond the profile's ends
+    and for a NaN time too."""
     sc = get_scenario("paper001_stopping")
-    c = RobustSelfTriggeredMPC(sc, N=10)
-    loop = ClosedLoop(sc, c)
-    loop.reset(seed=0)
-    assert c._kern is not None, "numba kernels not available"
-    stage_data, closed_form = c._stage_data, c._closed_form
-    n = {"stage": 0, "cf": 0}
-
-    def stage_checked(obs):
-        pend, init = list(c._pend), c._initialised
-        kern, c._kern = c._kern, None
-        ref = stage_data(obs)["h"]
-        c._kern, c._pend, c._initialised = kern, pend, init
-        data = stage_data(obs)
-        np.testing.assert_array_equal(data["h"], ref)
-        n["stage"] += 1
-        return data
-
-    def cf_checked(prob, h):
-        got = closed_form(prob, h)
-        kern, c._kern = c._kern, None
-        ref = closed_form(prob, h)
-        c._kern = kern
-        assert got[1] == ref[1]
-        assert got[0] == pytest.approx(ref[0], rel=1e-12, abs=1e-18)
-        n["cf"] += 1
-        return got
-
-    c._stage_data, c._closed_form = stage_checked, cf_checked
-    holds = []
-    while not loop.done:
-        info = loop.step()
-        if info["triggered"]:
-            holds.append(info["hold_steps"])
-    assert n["stage"] == len(holds) and n["cf"] > len(holds)
-    # the same run on the numpy path alone
-    monkeypatch.setattr(tube, "kernels", lambda: None)
-    c2 = RobustSelfTriggeredMPC(sc, N=10)
-    loop2 = ClosedLoop(sc, c2)
-    loop2.reset(seed=0)
-    assert c2._kern is None
-    holds2 = []
-    while not loop2.done:
-        info = loop2.step()
-        if info["triggered"]:
-            holds2.append(info["hold_steps"])
-    assert holds2 == holds
-    stop, stop2 = loop.metrics()["stop_error_m"], loop2.metrics()["stop_error_m"]
-    assert stop2 == pytest.approx(stop, abs=1e-9)
+    ctx = sc.control_context()
+    prof, g, tr = ctx.reference.profile, gradient_table(ctx.track), ctx.train
+    mi = tr.inertial_mass_kg
+    tables = (
+        prof.t_s,
+        prof._seg_tbl,
+        g.x,
+        np.column_stack([g.y0, g.slope]),
+        True,
+        tr.davis_a_N / mi,
+        tr.davis_b_Ns_per_m / mi,
+        tr.davis_c_Ns2_per_m2 / mi,
+        tr.mass_kg * G / 1000.0 / mi,
+    )
+    fast = implementation("tube.fill_reference", compiled_twin=True)
+    ref = implementation("tube.fill_reference", compiled_twin=False)
+    assert ref is fill_reference and fast is not ref
+    tgrid = 0.2 * np.arange(33)
+    o, ng = 11, tgrid.size
+    t_end = float(prof.t_s[-1])
+    for t0 in [*np.linspace(-3.0, t_end + 3.0, 97), float("nan")]:
+        for has_grad in (True, False):
+            args = (tgrid, float(t0), *tables[:4], has_grad, *tables[5:])
+            a, b = np.full(o + 4 * ng, 7.0), np.full(o + 4 * ng, 7.0)
+            fast(a, o, *args)
+            ref(b, o, *args)
+            np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("jit", [True, False])
-def test_non_finite_measurement_is_reported_by_name(monkeypatch, jit):
+@needs_jit
+def test_closed_form_twin_agrees_with_its_reference():
+    """The compiled closed form gives the reference's feasibility and its cost to
+    rounding (the sum of squares is not BLAS's)."""
+    fast = implementation("tube.closed_form", compiled_twin=True)
+    ref = implementation("tube.closed_form", compiled_twin=False)
+    rng = np.random.default_rng(0)
+    for k in range(200):
+        nchk, nr, nh = 20, 13, 40
+        T = rng.standard_normal((nchk + nr, 25))
+        cols = np.sort(rng.choice(nh, 25, replace=False))
+        h = rng.standard_normal(nh)
+        out = T @ h[cols]
+        b = out[:nchk] + rng.uniform(0.01, 1.0, nchk)
+        if k % 2:
+            b[k % nchk] -= 2.0  # one row violated
+        if k % 50 == 3:
+            h[cols[0]] = np.nan  # non-finite data: not feasible
+        got, want = fast(T, cols, h, b, nchk), ref(T, cols, h, b, nchk)
+        assert got[1] == want[1] == (k % 2 == 0 and k % 50 != 3)
+        if np.isfinite(want[0]):
+            assert got[0] == pytest.approx(want[0], rel=1e-12, abs=1e-18)
+
+
+@needs_jit
+def test_compiled_twins_take_the_same_decisions_as_the_references():
+    """A closed loop with the compiled twins and one with their references (the public
+    switch ``compiled_twins``) send the same commands, bit for bit, and trigger alike."""
+    sc = get_scenario("paper001_stopping")
+    runs = {}
+    for twins in (True, False):
+        c = RobustSelfTriggeredMPC(sc, N=10, compiled_twins=twins)
+        res = simulate(sc, c, seed=0)
+        runs[twins] = res
+    a, b = runs[True].df, runs[False].df
+    np.testing.assert_array_equal(a["u_cmd_N"].to_numpy(), b["u_cmd_N"].to_numpy())
+    np.testing.assert_array_equal(a["triggered"].to_numpy(), b["triggered"].to_numpy())
+    assert runs[True].metrics["stop_error_m"] == runs[False].metrics["stop_error_m"]
+
+
+@pytest.mark.parametrize("jit", [pytest.param(True, marks=needs_jit), False])
+def test_non_finite_measurement_is_reported_by_name(jit):
     """A NaN speed is rejected with an error that names the measurement, before any
-    stage data or QP is formed (compiled and numpy paths alike)."""
-    import train_envs.controllers.tube_mpc as tube
-
-    if not jit:
-        monkeypatch.setattr(tube, "kernels", lambda: None)
+    stage data or QP is formed (compiled twins and references alike)."""
     sc = get_scenario("paper001_stopping")
-    for ctrl in (RobustSelfTriggeredMPC(sc, N=5), tube.TubeMPC(sc, N=5)):
+    for ctrl in (
+        RobustSelfTriggeredMPC(sc, N=5, compiled_twins=jit),
+        TubeMPC(sc, N=5, compiled_twins=jit),
+    ):
         loop = ClosedLoop(sc, ctrl)
         loop.reset(seed=0)
         for _ in range(12):
