@@ -65,6 +65,7 @@ from train_envs.controllers.models import (
 )
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
 from train_envs.plants.lookup import gradient_table
+from train_envs.validation import check_range
 
 __all__ = [
     "AdaptiveCruiseMPC",
@@ -254,21 +255,12 @@ class AdaptiveMPCConfig:
         if self.Nc > self.Np:
             raise ValueError(f"Nc must lie in [1, Np={self.Np}], got {self.Nc}")
         _check_alpha(self.alpha)
-        _range("bias_regressor", self.bias_regressor, 0.0, 100.0, low_open=True)
-        _range("du_max_kN_per_s", self.du_max_kN_per_s, 0.0, 1e4, low_open=True)
-        _range("r_du", self.r_du, 0.0, 1e3)
-        _range("soft_penalty", self.soft_penalty, 0.0, 1e8, low_open=True)
-        _range("relinearise_mps", self.relinearise_mps, 0.0, 100.0, low_open=True)
-        _range("model_refresh_tol", self.model_refresh_tol, 0.0, 1.0)
-
-
-def _range(name: str, value: float, lo: float, hi: float, *, low_open: bool = False) -> float:
-    x = float(value)
-    ok = math.isfinite(x) and (x > lo if low_open else x >= lo) and x <= hi
-    if not ok:
-        bracket = "(" if low_open else "["
-        raise ValueError(f"{name} must lie in {bracket}{lo}, {hi}], got {value!r}")
-    return x
+        check_range("bias_regressor", self.bias_regressor, 0.0, 100.0, low_inclusive=False)
+        check_range("du_max_kN_per_s", self.du_max_kN_per_s, 0.0, 1e4, low_inclusive=False)
+        check_range("r_du", self.r_du, 0.0, 1e3)
+        check_range("soft_penalty", self.soft_penalty, 0.0, 1e8, low_inclusive=False)
+        check_range("relinearise_mps", self.relinearise_mps, 0.0, 100.0, low_inclusive=False)
+        check_range("model_refresh_tol", self.model_refresh_tol, 0.0, 1.0)
 
 
 # ---------------------------------------------------------------------------------------
