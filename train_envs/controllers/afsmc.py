@@ -1,13 +1,10 @@
 """Adaptive fuzzy sliding-mode speed/position controller (paper 000's AFSMC comparator).
 
-Paper 000 compares its SEMPC with an "AFSMC" (its ref. [18]) without giving the law;
-this is the standard adaptive fuzzy sliding-mode controller in which the switching
-term of the sliding-mode law is replaced by an adaptive fuzzy system whose singleton
-consequents are tuned online by a Lyapunov-derived law (Wang L.-X., *Adaptive Fuzzy
-Systems and Control: Design and Stability Analysis*, 1994; Yoo & Ham, "Adaptive fuzzy
-sliding mode control of nonlinear system", *IEEE Trans. Fuzzy Syst.* 6(2), 1998;
-boundary layer: Slotine & Li, *Applied Nonlinear Control*, 1991, ch. 7; parameter
-projection: Ioannou & Sun, *Robust Adaptive Control*, 1996).
+Paper 000 gives no law for its "AFSMC" comparator (its ref. [18]); this is the standard
+form: the switching term of a sliding-mode law replaced by an adaptive fuzzy system
+with Lyapunov-tuned singleton consequents (Wang L.-X., *Adaptive Fuzzy Systems and
+Control*, 1994; Yoo & Ham, *IEEE Trans. Fuzzy Syst.* 6(2), 1998; boundary layer: Slotine
+& Li, *Applied Nonlinear Control*, 1991, ch. 7; projection: Ioannou & Sun, 1996).
 
 Model used for the design (nominal train, point mass)::
 
@@ -21,12 +18,10 @@ Errors ``e_v = v_ref − v``; sliding variable ``σ = ė_z + λ e_z`` on an erro
 * reference mode ``"distance"`` (v_ref(s), no meaningful s_ref(t)): ``e_z = ∫e_v dt``,
   so ``σ = e_v + λ ∫e_v dt`` — speed error only.
 
-``surface="speed"`` drops the position/integral part: ``σ = e_v``, the first-order
-sliding surface of the speed loop (v̇ is driven directly by u, relative degree one).
-Such a controller tracks speed only, so its position error drifts with every
-unmodelled force. It is registered as ``"afsmc000"``, our reconstruction of paper 000's
-comparator (ref. [18], Guo et al., IET ITS 17(2), 2023; why a speed-tracking design:
-``docs/design/baselines.md``).
+``surface="speed"`` drops the position/integral part: ``σ = e_v`` (relative degree
+one), a speed-only tracker whose position drifts with every unmodelled force; it is
+registered as ``"afsmc000"``, our reading of paper 000's comparator (ref. [18], Guo et
+al., IET ITS 17(2), 2023; why: ``docs/design/baselines.md``).
 
 Control law (whole-train force)::
 
