@@ -16,6 +16,15 @@ from train_envs.controllers.adaptive_mpc import (
     excitation_box,
     feasible_target,
 )
+from train_envs.controllers.models import (
+    coupled_cars_continuous,
+    coupled_cars_relative_continuous,
+    coupler_pattern,
+    dead_time_maps,
+    difference_matrix,
+    discretise,
+    point_lag_continuous,
+)
 from train_envs.reproduce import list_reproductions
 from train_envs.reproduce.paper002 import compare_paper002, run_paper002, summarise_run
 from train_envs.scenarios import DisturbanceSpec, get_scenario
@@ -284,3 +293,43 @@ def test_bad_params_raise():
     ctrl = make_controller("adaptive_mpc", sc)
     with pytest.raises(ValueError, match="per-car inputs"):
         ctrl.reset(sc.control_context())
+
+
+# ---------------------------------------------------------------------------------------
+# shared linear prediction models (train_envs.controllers.models)
+# ---------------------------------------------------------------------------------------
+def test_coupled_models_agree_in_both_coordinates():
+    """[ξ (mm), v] = T [q, v]: the relative model is the position model seen through T."""
+    rng = np.random.default_rng(3)
+    n = 4
+    mi = rng.uniform(3e4, 6e4, n)
+    slope = rng.uniform(10.0, 500.0, n)
+    k, d = 8e5, 2e4
+    Ap, Bp, Ep = coupled_cars_continuous(k, d, mi, slope)
+    Ar, Br, Er = coupled_cars_relative_continuous(k, d, mi, slope)
+    T = np.zeros((2 * n - 1, 2 * n))
+    T[: n - 1, :n] = 1000.0 * difference_matrix(n)
+    T[n - 1 :, n:] = np.eye(n)
+    np.testing.assert_allclose(Ar @ T, T @ Ap, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(Br, T @ Bp, rtol=1e-12)
+    np.testing.assert_allclose(Er, T @ Ep, rtol=1e-12)
+    D = difference_matrix(n)
+    np.testing.assert_array_equal(coupler_pattern(n), -D.T @ D)
+
+
+def test_point_lag_dead_time_maps_match_stepping():
+    """x(k+l) from the dead-time maps equals l steps of the discrete model."""
+    kv, tau, dt, l = 2e-3, 0.7, 0.2, 3  # noqa: E741
+    Ad, Bd, Ed = discretise(*point_lag_continuous(kv, tau), dt)
+    Al, Gu, Gw = dead_time_maps(Ad, Bd[:, 0], Ed[:, 0], l)
+    x0 = np.array([10.0, 5.0, 0.3])
+    u = np.array([0.2, -0.1, 0.4])
+    w = np.array([-0.01, 0.02, 0.0])
+    x = x0.copy()
+    for j in range(l):
+        x = Ad @ x + Bd[:, 0] * u[j] + Ed[:, 0] * w[j]
+    np.testing.assert_allclose(Al @ x0 + Gu @ u + Gw @ w, x, rtol=1e-12)
+    # no lag: two states, the command is the acceleration
+    Ad2, Bd2, _ = discretise(*point_lag_continuous(0.0, 0.0), dt)
+    np.testing.assert_allclose(Ad2, [[1.0, dt], [0.0, 1.0]])
+    np.testing.assert_allclose(Bd2[:, 0], [0.5 * dt * dt, dt])

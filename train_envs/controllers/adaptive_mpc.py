@@ -1,121 +1,49 @@
 r"""Paper 002: adaptive MPC for cruise control of an n-car train, and its non-adaptive twin.
 
 Xu et al. (2019), "Adaptive model predictive control for cruise control of high-speed
-trains with time-varying parameters". Two controllers share this module:
+trains with time-varying parameters".
 
 * ``"adaptive_mpc"`` (:class:`AdaptiveCruiseMPC`): gradient estimator of the one-step
-  model (002 eq. 12–16) + excitation bound as an input constraint (eq. 17, 26–28) + MPC
-  on the estimated model (eq. 18–25, 29–34);
+  model (002 eq. 12–16, :class:`GradientEstimator`) + excitation bound as an input
+  constraint (eq. 17, 26–28, :func:`excitation_box`) + MPC on the estimated model
+  (eq. 18–25, 29–34);
 * ``"mpc002"`` (:class:`NominalCruiseMPC`): the same MPC on the nominal model with the
-  estimate frozen (λ = 0, no excitation bound) — the paper's non-adaptive comparator
-  (its ref. [15]). Neither controller has a disturbance observer or integral action:
-  the only thing that removes model error is the adaptive law.
+  estimate frozen (λ = 0, no excitation bound), 002's comparator (its ref. [15]).
+  Neither has a disturbance observer or integral action.
 
-Plant model (002 eq. 3; cars numbered from the front, coupler j joins cars j, j+1)
-------------------------------------------------------------------------------------
-.. math::
+**Model (002 eq. 3–8).** ``ξ̇_j = v_j − v_{j+1}``,
+``m_i v̇_i = u_i + kξ_{i−1} − kξ_i − R_i(v_i) − m_i gθ/1000`` with ``R_i = m_i(c_0 +
+c_1 v_i)`` and the aero term ``(Σ m_j) c_2 v_1²`` on the lead car (plus a coupler
+damping when the train has one), Davis part linearised about v_r (slope in the matrix,
+re-linearised when v_r moved more than ``relinearise_mps``; the rest a per-stage affine
+term), exact ZOH: ``x(k+1) = A x + B u + d(k)``, ``x = [ξ (mm), v (m/s)]``, u in kN
+(:func:`~train_envs.controllers.models.coupled_cars_relative_continuous`).
 
-    \dot\xi_j = v_j - v_{j+1},\qquad
-    m_i \dot v_i = u_i + k\xi_{i-1} - k\xi_i - R_i(v_i) - m_i g\theta/1000,
+**Estimate (eq. 12–16, with an affine column).** In error coordinates about the
+reference point ``(x_r, û_ff)``, ``x_r = [0; v_r 1]``, ``û_ff`` the input that keeps the
+estimated model on the reference::
 
-with :math:`R_i = m_i(c_0 + c_1 v_i)` and the aerodynamic term
-:math:`(\sum_j m_j) c_2 v_1^2` on the lead car (a coupler damping
-:math:`d(v_j - v_{j+1})` is added to :math:`k\xi_j` when the train has one; 002's
-couplers are pure springs). The Davis part is linearised about the
-reference speed :math:`v_{r}` (eq. 4–5): :math:`R_i(v) \approx R_i(v_r) +
-R_i'(v_{lin})(v - v_r)`; the slope sits in the model matrix (re-linearised when
-:math:`v_r` moved more than ``relinearise_mps`` from :math:`v_{lin}`), the constant part
-is a per-stage affine term. Exact zero-order hold (eq. 8) gives
+    x̂(k+1) = A x + B u + d(k) + ΔΘ̂ X,   X = [x − x_r; u − û_ff; c_b]
+    ΔΘ̂ ← ΔΘ̂ + λ x̃(k+1) Xᵀ                (stable while λ‖X‖² < 2 − α, eq. 17)
 
-.. math::  x(k+1) = A x(k) + B u(k) + d(k),\qquad x = [\xi_1..\xi_{n-1}, v_1..v_n].
+The constant ``c_b`` (``bias_regressor``) lets the estimate carry the running-resistance
+offset that the time-varying c_0, c_1, c_2 cause; ``R̂_dev = −B_v⁻¹ c_b ΔΘ̂_{v,end}``
+is reported in ``info``.
 
-**Units (the normalisation)**: ξ in mm, v in m/s, u in kN, so that the states, inputs
-and the regressor of the estimator are all O(1) (a coupler force of 10 kN is 1 mm at
-k = 1e4 kN/m) and OSQP sees entries of comparable size.
+**Excitation bound (eq. 26–28).** ``‖u(k) − û_ff‖ < ρ = sqrt((2−α)/λ − ‖e‖² − c_b²)``,
+replaced by its inscribed box on the first move only, intersected with the force box
+and the rate window; it enters the QP as a hard per-call bound on an input copy
+appended to the MPC state.
 
-Adaptive law (eq. 12–17)
-------------------------
-The paper estimates :math:`\Theta = [A, B]` with regressor :math:`X = [x; u]`. Its
-linearised model has no affine term, so it cannot represent the running-resistance
-*offset* that the time-varying :math:`c_0, c_1, c_2` cause; we add a constant regressor
-entry (the "1" of :math:`X = [x; u; 1]`). The estimate is the nominal model plus a
-correction written in error coordinates about the reference point
-:math:`(x_r(k), u_{ff}(k))` — the paper's error model (eq. 5) taken along the reference
-trajectory instead of about one cruise equilibrium:
-
-.. math::
-
-    \hat x(k+1) = \underbrace{A x + B u + d(k)}_{\text{nominal}}
-      + \Delta\hat\Theta(k) X(k),\qquad
-    X(k) = \begin{bmatrix} x(k) - x_r(k) \\ u(k) - \hat u_{ff}(k) \\ c_b \end{bmatrix},
-
-:math:`x_r = [0; v_r\mathbf 1]` and :math:`\hat u_{ff}` the input that keeps the
-*estimated* model on the reference (its equilibrium input, eq. 4, plus the reference
-acceleration). With the one-step prediction error :math:`\tilde x(k+1) = x(k+1) -
-\hat x(k+1)` the gradient law (eq. 16) is
-
-.. math::  \Delta\hat\Theta \leftarrow \Delta\hat\Theta + \lambda\,\tilde x(k+1) X(k)^\top,
-
-which is stable for constant parameters when :math:`\lambda\lVert X\rVert^2 < 2-\alpha`
-(eq. 17). The constant :math:`c_b` (``bias_regressor``, 5) sets how fast the offset is
-learned: with the other entries small the bias error shrinks by :math:`1-\lambda c_b^2`
-per step (0.75 at the paper's λ = 0.01, a 2 s time constant at T = 0.5 s). The bias
-column :math:`c_b\,\Delta\hat\Theta_{:,\mathrm{end}}` is the estimated per-step velocity
-offset; :math:`\hat R_{dev} = -B_v^{-1} c_b\Delta\hat\Theta_{v,\mathrm{end}}` is the
-estimated running-resistance deviation of each car [kN] (reported in ``info``).
-
-Excitation bound as an input constraint (eq. 26–28)
----------------------------------------------------
-:math:`\lVert X\rVert^2 = \lVert e\rVert^2 + \lVert u - \hat u_{ff}\rVert^2 + c_b^2 <
-(2-\alpha)/\lambda` with :math:`e = x - x_r` known at time k, so
-
-.. math::
-
-    \lVert u(k) - \hat u_{ff}(k)\rVert < \rho(k) = \sqrt{(2-\alpha)/\lambda - \lVert e\rVert^2
-      - c_b^2},
-
-and, as eq. 28, the ball is replaced by its inscribed box
-:math:`|u_i - \hat u_{ff,i}| \le \rho/\sqrt{n}` on the **first move** only (the paper's
-:math:`M_1` selects :math:`u(k|k)`: later X are not known). The box is intersected with
-the force box and the rate window; if that intersection is empty the nearest
-reachable input is imposed and the update step is shrunk to
-:math:`\lambda_{eff} = (2-\alpha)/\lVert X\rVert^2` for that step (never happens with
-the defaults on 002's scenario unless the estimate is far off). The box enters the QP as
-a hard, per-call bound on an input copy appended to the MPC state (the core's input box
-is fixed at construction).
-
-MPC (eq. 18–25, 29–34)
-----------------------
-On the estimated model — matrices :math:`A + \Delta\hat A`, :math:`B + \Delta\hat B`
-and the affine term :math:`d_i + c_b\Delta\hat\Theta_{:,\mathrm{end}} - \Delta\hat A
-x_{r,i} - \Delta\hat B \hat u_{ff,i}` per stage — minimise
-
-.. math::
-
-    J = \sum_{i=1}^{N_p} q_v\lVert v_i - v_{r,i}\mathbf 1\rVert^2 + q_\xi\lVert\xi_i\rVert^2
-      + \sum_{i=0}^{N_c-1} r_u\lVert u_i - \hat u_{ff,i}\rVert^2 + r_{\Delta}\lVert\Delta
-      u_i\rVert^2
-
-(eq. 23: speed tracking of every car plus :math:`U^\top R U` with U the deviation from
-the equilibrium input, as in the error model; the coupler term is eq. 9's
-:math:`x_i^2`; the small :math:`r_\Delta` term is ours and keeps the QP well conditioned)
-subject to the hard force box :math:`|u_i| \le 30` kN (eq. 29), a hard rate limit
-(``du_max_kN_per_s``, ours: 002 gives none), the soft speed box
-:math:`0 \le v \le v_{lim}` (eq. 30) and the soft coupler box :math:`|\xi_j| \le 0.02`
-m (eq. 33), and the excitation box above (eq. 27). Solved by the shared OSQP core
-:class:`~train_envs.controllers.mpc_core.LinearMPC` (sparse form).
-
-Pushing new matrices into OSQP (:meth:`LinearMPC.set_model`) rebuilds the QP data
-(~40–100 ms for this size), so the estimated :math:`\Delta\hat A, \Delta\hat B` are pushed
-only when they moved by more than ``model_refresh_tol`` since the last push (RMS over
-the rows of the change relative to the nominal row norms of ``[A B]``) and with every
-re-linearisation; in between the affine term evaluates the current estimate at the
-reference point, so the MPC's model differs from the current estimate only by the
-(second-order) product of the unpushed matrix change and the deviation from the
-reference. The bias — the part that matters for the resistance offset — is used every
-step. On paper 002's scenario the matrix corrections stay below 0.3 % of the nominal
-rows (the slope errors Δc1 + 2Δc2 v are small next to the coupler dynamics), so in
-practice the matrices are pushed only with the re-linearisations (~16 per 1200 s run).
+**MPC (eq. 18–25, 29–34).** On the estimated model minimise
+``Σ_{i=1}^{N_p} q_v‖v_i − v_{r,i}1‖² + q_ξ‖ξ_i‖² + Σ_{i=0}^{N_c−1} r_u‖u_i − û_ff,i‖² +
+r_Δ‖Δu_i‖²`` (r_Δ small, ours) subject to the hard force box (eq. 29), a hard rate limit
+(ours), the soft boxes ``0 ≤ v ≤ v_lim`` (eq. 30) and ``|ξ_j| ≤ 0.02 m`` (eq. 33) and the
+excitation box, solved by :class:`~train_envs.controllers.mpc_core.LinearMPC`. The
+estimated matrices are pushed into the QP only when they moved by more than
+``model_refresh_tol`` and with every re-linearisation; in between the affine term
+evaluates the current estimate at the reference point. Design notes and measurements:
+``docs/design/adaptive_mpc.md``.
 """
 
 from __future__ import annotations
@@ -129,10 +57,15 @@ import numpy as np
 
 from train_envs.controllers._common import per_car_davis
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
+from train_envs.controllers.models import (
+    coupled_cars_relative_continuous,
+    discretise,
+    gradient_accel,
+    resistance_offset_accel,
+)
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
-from train_envs.controllers.train_mpc import zoh
 from train_envs.plants.lookup import gradient_table
-from train_envs.trains import G
+from train_envs.validation import check_range
 
 __all__ = [
     "AdaptiveCruiseMPC",
@@ -322,21 +255,12 @@ class AdaptiveMPCConfig:
         if self.Nc > self.Np:
             raise ValueError(f"Nc must lie in [1, Np={self.Np}], got {self.Nc}")
         _check_alpha(self.alpha)
-        _range("bias_regressor", self.bias_regressor, 0.0, 100.0, low_open=True)
-        _range("du_max_kN_per_s", self.du_max_kN_per_s, 0.0, 1e4, low_open=True)
-        _range("r_du", self.r_du, 0.0, 1e3)
-        _range("soft_penalty", self.soft_penalty, 0.0, 1e8, low_open=True)
-        _range("relinearise_mps", self.relinearise_mps, 0.0, 100.0, low_open=True)
-        _range("model_refresh_tol", self.model_refresh_tol, 0.0, 1.0)
-
-
-def _range(name: str, value: float, lo: float, hi: float, *, low_open: bool = False) -> float:
-    x = float(value)
-    ok = math.isfinite(x) and (x > lo if low_open else x >= lo) and x <= hi
-    if not ok:
-        bracket = "(" if low_open else "["
-        raise ValueError(f"{name} must lie in {bracket}{lo}, {hi}], got {value!r}")
-    return x
+        check_range("bias_regressor", self.bias_regressor, 0.0, 100.0, low_inclusive=False)
+        check_range("du_max_kN_per_s", self.du_max_kN_per_s, 0.0, 1e4, low_inclusive=False)
+        check_range("r_du", self.r_du, 0.0, 1e3)
+        check_range("soft_penalty", self.soft_penalty, 0.0, 1e8, low_inclusive=False)
+        check_range("relinearise_mps", self.relinearise_mps, 0.0, 100.0, low_inclusive=False)
+        check_range("model_refresh_tol", self.model_refresh_tol, 0.0, 1.0)
 
 
 # ---------------------------------------------------------------------------------------
@@ -419,45 +343,19 @@ class AdaptiveCruiseMPC(Controller):
     # ------------------------------------------------------------------- model
     def _discretise(self, v_lin: float) -> None:
         """Nominal ZOH model in (mm, m/s, kN) with the Davis slope at ``v_lin``."""
-        n, dt = self._n, self.ctx.dt_s
-        nx = 2 * n - 1
-        mi, k, dmp = self._mi, self._k, self._damping
         slope = self._cb + 2.0 * self._cc * max(v_lin, 0.0)
-        Ac = np.zeros((nx, nx))
-        for j in range(n - 1):  # dξ_j/dt [mm/s] = 1000 (v_j − v_{j+1})
-            Ac[j, n - 1 + j] = 1000.0
-            Ac[j, n + j] = -1000.0
-        # m_i dv_i/dt = 1000 u_i + f_{i−1} − f_i − slope_i v_i,
-        # f_j = k ξ_j/1000 + d (v_j − v_{j+1})  (d = 0 for 002's pure springs)
-        for i in range(n):
-            r = n - 1 + i
-            if i > 0:
-                Ac[r, i - 1] += k / 1000.0 / mi[i]
-                Ac[r, r - 1] += dmp / mi[i]
-                Ac[r, r] -= dmp / mi[i]
-            if i < n - 1:
-                Ac[r, i] -= k / 1000.0 / mi[i]
-                Ac[r, r] -= dmp / mi[i]
-                Ac[r, r + 1] += dmp / mi[i]
-            Ac[r, r] -= slope[i] / mi[i]
-        Bc = np.zeros((nx, n))
-        Bc[n - 1 :, :] = np.diag(1000.0 / mi)
-        Ec = np.zeros((nx, n))  # per-car acceleration input (affine terms)
-        Ec[n - 1 :, :] = np.eye(n)
-        Ad, BE = zoh(Ac, np.hstack([Bc, Ec]), dt)
-        self._Ad, self._Bd, self._Ed = Ad, BE[:, :n], BE[:, n:]
-        self._Bv_inv = np.linalg.inv(self._Bd[n - 1 :, :])
+        Ac, Bc, Ec = coupled_cars_relative_continuous(self._k, self._damping, self._mi, slope)
+        self._Ad, self._Bd, self._Ed = discretise(Ac, Bc, Ec, self.ctx.dt_s)
+        self._Bv_inv = np.linalg.inv(self._Bd[self._n - 1 :, :])
         self._slope = slope
         self._v_lin = v_lin
 
     def _affine_accel(self, s_r: np.ndarray, v_r: np.ndarray) -> np.ndarray:
         """Nominal per-stage, per-car affine accelerations ``(len(v_r), n)`` [m/s²]."""
-        vr = np.maximum(v_r, 0.0)[:, None]
-        R = self._ca * (vr > 0) + self._cb * vr + self._cc * vr * vr
-        w = -(R - self._slope * vr) / self._mi
+        w = -resistance_offset_accel(self._ca, self._cb, self._cc, self._slope, self._mi, v_r)
         if self.ctx.track is not None:
             theta = np.asarray(self._grad(s_r), float)[:, None]
-            w -= self._m * G * theta / 1000.0 / self._mi
+            w -= gradient_accel(self._m, self._mi, theta)
         return w
 
     def _aug(self, A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,13 +1,10 @@
 """Adaptive fuzzy sliding-mode speed/position controller (paper 000's AFSMC comparator).
 
-Paper 000 compares its SEMPC with an "AFSMC" (its ref. [18]) without giving the law;
-this is the standard adaptive fuzzy sliding-mode controller in which the switching
-term of the sliding-mode law is replaced by an adaptive fuzzy system whose singleton
-consequents are tuned online by a Lyapunov-derived law (Wang L.-X., *Adaptive Fuzzy
-Systems and Control: Design and Stability Analysis*, 1994; Yoo & Ham, "Adaptive fuzzy
-sliding mode control of nonlinear system", *IEEE Trans. Fuzzy Syst.* 6(2), 1998;
-boundary layer: Slotine & Li, *Applied Nonlinear Control*, 1991, ch. 7; parameter
-projection: Ioannou & Sun, *Robust Adaptive Control*, 1996).
+Paper 000 gives no law for its "AFSMC" comparator (its ref. [18]); this is the standard
+form: the switching term of a sliding-mode law replaced by an adaptive fuzzy system
+with Lyapunov-tuned singleton consequents (Wang L.-X., *Adaptive Fuzzy Systems and
+Control*, 1994; Yoo & Ham, *IEEE Trans. Fuzzy Syst.* 6(2), 1998; boundary layer: Slotine
+& Li, *Applied Nonlinear Control*, 1991, ch. 7; projection: Ioannou & Sun, 1996).
 
 Model used for the design (nominal train, point mass)::
 
@@ -21,14 +18,10 @@ Errors ``e_v = v_ref − v``; sliding variable ``σ = ė_z + λ e_z`` on an erro
 * reference mode ``"distance"`` (v_ref(s), no meaningful s_ref(t)): ``e_z = ∫e_v dt``,
   so ``σ = e_v + λ ∫e_v dt`` — speed error only.
 
-``surface="speed"`` drops the position/integral part: ``σ = e_v``, the first-order
-sliding surface of the speed loop (v̇ is driven directly by u, relative degree one).
-Such a controller tracks speed only, so its position error drifts with every
-unmodelled force. It is registered as ``"afsmc000"``, our reconstruction of paper 000's
-comparator (ref. [18], Guo et al., IET ITS 17(2), 2023, whose law 000 does not restate
-and which we could not consult): 000's Tables 2 and 4 report E_x of 57–90 m and
-stopping errors of 25–74 m for it, which no controller with position feedback would
-show, so the comparator is taken as a speed-tracking design.
+``surface="speed"`` drops the position/integral part: ``σ = e_v`` (relative degree
+one), a speed-only tracker whose position drifts with every unmodelled force; it is
+registered as ``"afsmc000"``, our reading of paper 000's comparator (ref. [18], Guo et
+al., IET ITS 17(2), 2023; why: ``docs/design/baselines.md``).
 
 Control law (whole-train force)::
 
@@ -41,36 +34,26 @@ With this u the nominal closed loop is ``σ̇ = −k_s sat(σ/φ) − f̂(σ|θ)
 ``V = σ²/2 + |θ − θ*|²/(2γ)`` gives the adaptive law above (Wang 1994).
 ξ(σ) are the seven fuzzy basis functions NB … PB of a strong triangular partition over
 σ (centres ``σ_span · {−1, −⅔, …, 1}``, σ_span = 1 m/s by default; outer terms
-saturate), so f̂ is the piecewise-linear interpolation of θ: the adaptive fuzzy system
-learns a σ-dependent compensation of the unknown disturbance and model error, which
-the switching term would otherwise have to dominate by brute force.
+saturate), so f̂ is the piecewise-linear interpolation of θ: a learnt σ-dependent
+compensation of the unknown disturbance and model error.
 
 Choices where the sources are silent:
 
 * the position (or integral) part of σ is saturated at ±δ (0.2 m/s by default): a
   train that fell behind a time reference (e.g. traction-limited at the start) catches
   up at most δ faster than v_ref, instead of overspeeding by λ e_x; outside the bound
-  σ is a pure speed error. (The catch-up costs speed error: ∫|e_v| dt grows by about
-  the position deficit, which is why E_v exceeds the speed-only PID's on time
-  references while E_x and the stopping error are far smaller.)
+  σ is a pure speed error;
 * boundary layer: the robust term is ``k_s sat(σ/φ)`` (continuous inside |σ| < φ,
   no chattering); adaptation is *not* dead-zoned, so constant disturbances inside
   the layer are still learnt; boundedness comes from the projection;
 * anti-windup: adaptation and the ∫e_v integrator are frozen while the command is
   clipped (envelope or rate limit) in the direction σ asks for; the integrator also
   stops growing once λ∫e_v reaches the catch-up bound δ;
-* the command is clipped to the speed-dependent envelope ``[−B(v), F(v)]`` and the
-  per-input rate limit ``du_max_Nps``; per-car scenarios (``n_inputs == n_cars``) get
-  the whole-train force split by car mass share ``m_i/M`` (equal accelerations, no
-  steady coupler force; :func:`train_envs.controllers._common.distribute`);
-* a_ref is the reference profile's acceleration at the current position (distance
-  mode) or time (time mode), as in ``pid``.
+* envelope, rate limit, per-car split (:func:`train_envs.controllers._common.distribute`)
+  and a_ref (the profile's acceleration at the position or time) as in ``pid``.
 
-Defaults (λ = 0.1 1/s, γ = 0.03 1/s², φ = 0.5 m/s, k_s = 0.2 m/s², θ_max = 0.5 m/s²)
-were picked on paper 001's stopping run (1.4 s of actuator lag plus dead time): the
-effective speed gain λ + k_s/φ = 0.5 1/s keeps the delayed loop well damped, and the
-stop stays within ±0.1 m under ±10 % mass, ±20 % Davis and 0.03 m/s² random
-resistance perturbations.
+Defaults: λ = 0.1 1/s, γ = 0.03 1/s², φ = 0.5 m/s, k_s = 0.2 m/s², θ_max = 0.5 m/s²
+(how they were picked: ``docs/design/baselines.md``).
 """
 
 from __future__ import annotations

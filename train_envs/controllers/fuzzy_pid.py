@@ -47,11 +47,9 @@ Rule logic (e = v_ref − v, ec = de/dt; "growing" = e and ec of the same sign):
 All three tables are even (``T[6−i][6−j] = T[i][j]``): the gain changes do not depend
 on the direction of the error, only on its size and on whether it grows.
 
-Defaults (kp0 0.6 1/s, ki0 0.05 1/s², kd0 0.1, k_e 3 s/m — |e| ≥ 1 m/s is "big" —,
-k_ec 6 s²/m, corrections ±0.2 / ±0.04 / ±0.1) were picked between paper 001's stopping
-run, whose 1.4 s of actuator lag and dead time wants K_p ≲ 0.6, and paper 004's urban
-run, which tolerates more gain: the stop stays within ±0.1 m under ±10 % mass, ±20 %
-Davis and 0.03 m/s² random resistance perturbations.
+Defaults: kp0 0.6 1/s, ki0 0.05 1/s², kd0 0.1, k_e 3 s/m (|e| ≥ 1 m/s is "big"),
+k_ec 6 s²/m, corrections ±0.2 / ±0.04 / ±0.1 (how they were picked:
+``docs/design/baselines.md``).
 """
 
 from __future__ import annotations
