@@ -6,8 +6,12 @@
   ``params=``), searched either in the env's own action scale, the unit cube
   ``space="unit"`` (x ∈ [−1, 1]ⁿ, mapped by :meth:`TunableParam.from_unit`, i.e.
   log-uniform for ``log`` parameters; default), or in ``space="native"`` (x_i ∈
-  [low, high], log10(value) ∈ [log10 low, log10 high] for ``log`` parameters);
-* **objectives** — episode metrics of :func:`train_envs.envs.evaluate`, each averaged
+  [low, high], log10(value) ∈ [log10 low, log10 high] for ``log`` parameters); the
+  mapping is :class:`train_envs.controllers.params.ParamSpace`'s, and the value of a
+  point (:meth:`EnvTuningProblem.param_values`, what the study stores) is exactly the
+  value the controller runs with;
+* **objectives** — episode metrics of :func:`train_envs.envs.evaluation.evaluate_env_params`
+  (the runner's :func:`~train_envs.simulation.evaluate_params`), each averaged
   over the scenario seeds: by default paper 004's five, ``itae`` (``ITAE_ms``),
   ``stop`` (``E_p_m`` = |stopping error|), ``time`` (``time_error_s``), ``comfort``
   (``comfort_mean_abs_jerk_mps3``), ``energy`` (``energy_kWh``), dropping ``stop`` /

@@ -193,18 +193,8 @@ class EnvEpisodes(Episodes):
         self.extra = {}
         self.max_steps = int(cap) * int(cfg["decision_interval"]) if cap else None
 
-    #: pass the values through the env's action encoding (to_unit, then its decode)
-    via_action = True
-
     def start(self, seed: int, params: Mapping[str, float] | None) -> ClosedLoop:
         values = self.space.complete(params or {}, self.defaults)
-        if self.via_action:
-            sp = self.space
-            values = sp.decode_action(
-                sp.encode_action(values, self.defaults).tolist(),
-                sp.unit_of(self.defaults),
-                self.defaults,
-            )
         self.env.reset(seed=seed)
         base = self.env.unwrapped
         if values != {n: self.defaults[n] for n in values}:
