@@ -8,7 +8,8 @@ Drivers (small dataclasses) say what sets the controller's parameters:
   selected solution, see :func:`load_params`);
 * :class:`ControllerDriver` — a controller with its defaults: the env's own controller
   (``"defaults"`` or its name) through the env, any other controller name through
-  :func:`train_envs.simulation.simulate` on the same scenario and episode seed.
+  the runner's :func:`train_envs.simulation.evaluate_params` on the same scenario and
+  episode seed.
 
 :func:`compare` runs every driver on every env case and seed and returns a tidy
 DataFrame (``env, driver, seed, scenario, return, env_steps`` and every metric of
@@ -199,9 +200,11 @@ class ControllerDriver:
     """A controller with its default parameters.
 
     ``"defaults"`` or the env's own controller name: the env with its default action
-    (so the return is known). Any other controller name: :func:`simulate` on the
-    scenario and episode seed the env draws for the seed (``return``/``env_steps`` are
-    NaN there: the env's reward is defined for its own controller's env steps).
+    (so the return is known). Any other controller name: the runner
+    (:func:`~train_envs.simulation.evaluate_params`; :func:`simulate` for its
+    trajectory) on the scenario and episode seed the env draws for the seed
+    (``return``/``env_steps`` are NaN there: the env's reward is defined for its own
+    controller's env steps).
     """
 
     controller: str = "defaults"

@@ -145,3 +145,26 @@ def test_env_params_validation():
             params_to_action(env, {"nope": 1.0})
     finally:
         env.close()
+
+
+def test_reused_env_rebuilds_a_controller_that_ran_other_values(monkeypatch):
+    """An evaluation with non-default values marks the env, so that the env cache's
+    next use rebuilds its controller (TrainTuningEnv.renew_controller)."""
+    from train_envs.envs.evaluation import ENV_CACHE, clear_env_cache
+    from train_envs.envs.train_env import TrainTuningEnv
+
+    renewed = []
+    renew = TrainTuningEnv.renew_controller
+
+    def spy(self):
+        renewed.append(renew(self))
+        return renewed[-1]
+
+    monkeypatch.setattr(TrainTuningEnv, "renew_controller", spy)
+    clear_env_cache()
+    evaluate_env_params(PID_ENV, {}, config=SHORT, reuse_env=True)
+    evaluate_env_params(PID_ENV, {"kp": 2.0}, config=SHORT, reuse_env=True)
+    evaluate_env_params(PID_ENV, {}, config=SHORT, reuse_env=True)
+    assert renewed == [False, True]
+    assert len(ENV_CACHE) == 1
+    clear_env_cache()
