@@ -8,7 +8,8 @@ Drivers (small dataclasses) say what sets the controller's parameters:
   selected solution, see :func:`load_params`);
 * :class:`ControllerDriver` — a controller with its defaults: the env's own controller
   (``"defaults"`` or its name) through the env, any other controller name through
-  :func:`train_envs.simulation.simulate` on the same scenario and episode seed.
+  the runner's :func:`train_envs.simulation.evaluate_params` on the same scenario and
+  episode seed.
 
 :func:`compare` runs every driver on every env case and seed and returns a tidy
 DataFrame (``env, driver, seed, scenario, return, env_steps`` and every metric of
@@ -199,9 +200,11 @@ class ControllerDriver:
     """A controller with its default parameters.
 
     ``"defaults"`` or the env's own controller name: the env with its default action
-    (so the return is known). Any other controller name: :func:`simulate` on the
-    scenario and episode seed the env draws for the seed (``return``/``env_steps`` are
-    NaN there: the env's reward is defined for its own controller's env steps).
+    (so the return is known). Any other controller name: the runner
+    (:func:`~train_envs.simulation.evaluate_params`; :func:`simulate` for its
+    trajectory) on the scenario and episode seed the env draws for the seed
+    (``return``/``env_steps`` are NaN there: the env's reward is defined for its own
+    controller's env steps).
     """
 
     controller: str = "defaults"
@@ -230,36 +233,17 @@ class ControllerDriver:
     def _simulate(self, case: EnvCase, seed: int) -> tuple[Any, Any]:
         from train_envs.simulation import simulate
 
-        env = case.make()
-        try:
-            env.reset(seed=int(seed))
-            base = env.unwrapped
-            scenario, episode_seed = base.scenario, base.loop.seed
-        finally:
-            env.close()
+        scenario, episode_seed = _env_episode(case, seed)
         return simulate(scenario, self.controller, seed=episode_seed), scenario
 
     def evaluate(self, case: EnvCase, seeds: Sequence[int]) -> pd.DataFrame:
         from train_envs.envs import evaluate
+        from train_envs.simulation import evaluate_params
 
         if self._own(case):
             return evaluate(check_id(case), None, seeds=seeds, config=case.config, label=self.name)
-        rows = []
-        for i, seed in enumerate(seeds):
-            res, sc = self._simulate(case, seed)
-            rows.append(
-                {
-                    "env": check_id(case),
-                    "driver": self.name,
-                    "episode": i,
-                    "seed": int(seed),
-                    "scenario": sc.name,
-                    "return": np.nan,
-                    "env_steps": np.nan,
-                    **res.metrics,
-                }
-            )
-        return pd.DataFrame(rows)
+        source = _OtherControllerEpisodes(case, self.controller, name=self.name)
+        return evaluate_params(source, seeds=seeds)
 
     def trajectory(self, case: EnvCase, seed: int) -> tuple[pd.DataFrame, Any]:
         if self._own(case):
@@ -272,6 +256,36 @@ class ControllerDriver:
             return _env_rollout(case, fn, seed)
         res, sc = self._simulate(case, seed)
         return res.df, sc
+
+
+def _env_episode(case: EnvCase, seed: int) -> tuple[Any, int]:
+    """The scenario and the runner's episode seed the env draws for ``seed``."""
+    env = case.make()
+    try:
+        env.reset(seed=int(seed))
+        base = env.unwrapped
+        return base.scenario, base.loop.seed
+    finally:
+        env.close()
+
+
+class _OtherControllerEpisodes:
+    """Episodes of another controller on the env's scenario and episode seed (the
+    runner's :class:`~train_envs.simulation.Episodes`, started from the env's draw);
+    ``return`` and ``env_steps`` are NaN: the env's reward is its own controller's."""
+
+    def __init__(self, case: EnvCase, controller: str, *, name: str) -> None:
+        self.case = case
+        self.controller = controller
+        self.ids = {"env": check_id(case), "driver": name}
+        self.extra = {"return": np.nan, "env_steps": np.nan}
+        self.max_steps = None
+
+    def start(self, seed: int, params: Mapping[str, float] | None) -> Any:
+        from train_envs.simulation import Episodes
+
+        scenario, episode_seed = _env_episode(self.case, seed)
+        return Episodes(scenario, self.controller).start(episode_seed, params)
 
 
 def check_id(case: EnvCase) -> str:

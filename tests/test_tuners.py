@@ -274,6 +274,41 @@ def test_tune_env_records_every_evaluation_once(tmp_path):
         )
 
 
+@pytest.mark.parametrize("space", ["unit", "native"])
+def test_stored_params_are_what_the_controller_ran(monkeypatch, space):
+    """Every value the study stores is exactly the value the controller ran with."""
+    from train_envs.envs.evaluation import EnvEpisodes
+
+    ran = []
+    start = EnvEpisodes.start
+
+    def spy(self, seed, params):
+        loop = start(self, seed, params)
+        ran.append(tuple(sorted(loop.controller.get_params().items())))
+        return loop
+
+    monkeypatch.setattr(EnvEpisodes, "start", spy)
+    r = tune(
+        PID,
+        "mowoa",
+        pop=4,
+        iters=2,
+        backend="serial",
+        storage=None,
+        seeds=[0],
+        objectives=["itae", "stop"],
+        space=space,
+        config={"max_episode_steps": 40},
+    )
+    df = r.evaluations
+    stored = [
+        tuple(sorted((n, float(row[n])) for n in ("kd", "ki", "kp"))) for _, row in df.iterrows()
+    ]
+    assert len(ran) == len(stored) == r.stats.run
+    assert sorted(ran) == sorted(stored)
+    assert r.selected_params == {n: float(r.selected[n]) for n in ("kp", "ki", "kd")}
+
+
 KILL_SCRIPT = textwrap.dedent(
     """
     import sys

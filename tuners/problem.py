@@ -6,8 +6,12 @@
   ``params=``), searched either in the env's own action scale, the unit cube
   ``space="unit"`` (x ∈ [−1, 1]ⁿ, mapped by :meth:`TunableParam.from_unit`, i.e.
   log-uniform for ``log`` parameters; default), or in ``space="native"`` (x_i ∈
-  [low, high], log10(value) ∈ [log10 low, log10 high] for ``log`` parameters);
-* **objectives** — episode metrics of :func:`train_envs.envs.evaluate`, each averaged
+  [low, high], log10(value) ∈ [log10 low, log10 high] for ``log`` parameters); the
+  mapping is :class:`train_envs.controllers.params.ParamSpace`'s, and the value of a
+  point (:meth:`EnvTuningProblem.param_values`, what the study stores) is exactly the
+  value the controller runs with;
+* **objectives** — episode metrics of :func:`train_envs.envs.evaluation.evaluate_env_params`
+  (the runner's :func:`~train_envs.simulation.evaluate_params`), each averaged
   over the scenario seeds: by default paper 004's five, ``itae`` (``ITAE_ms``),
   ``stop`` (``E_p_m`` = |stopping error|), ``time`` (``time_error_s``), ``comfort``
   (``comfort_mean_abs_jerk_mps3``), ``energy`` (``energy_kWh``), dropping ``stop`` /
@@ -40,6 +44,8 @@ from typing import Any
 
 import numpy as np
 from pymoo.core.problem import Problem
+
+from train_envs.controllers.params import SPACES, ParamSpace
 
 OBJECTIVE_ALIASES: dict[str, str] = {
     "itae": "ITAE_ms",
@@ -104,12 +110,12 @@ class EnvTask:
 
     def run(self) -> dict[str, Any]:
         import train_envs  # noqa: F401  (registers the ids in a fresh worker)
-        from train_envs.envs import evaluate
+        from train_envs.envs.evaluation import evaluate_env_params
 
         # reuse_env: the worker process (pool worker, Dask worker or the driver itself
         # with the serial backend) keeps the env it built for this (env_id, config) and
         # resets it with each seed, which gives the table a fresh env gives, bit for bit
-        df = evaluate(
+        df = evaluate_env_params(
             self.env_id,
             dict(self.params),
             seeds=list(self.seeds),
@@ -300,7 +306,7 @@ class EnvTuningProblem(TaskProblem):
 
         import train_envs  # noqa: F401  (registers the ids)
 
-        if space not in ("unit", "native"):
+        if space not in SPACES:
             raise ValueError(f"space must be 'unit' or 'native', got {space!r}")
         self.env_id = env_id
         self.config = json.loads(json.dumps(dict(config or {})))  # JSON-able copy
@@ -322,7 +328,8 @@ class EnvTuningProblem(TaskProblem):
         unknown = [n for n in names if n not in specs]
         if unknown or not names:
             raise ValueError(f"params {unknown or names} not tunable here; allowed: {list(specs)}")
-        self.specs = tuple(specs[n] for n in names)
+        self.param_space = ParamSpace.of(specs.values(), names)
+        self.specs = self.param_space.specs
         self.fixed_params = {k: float(v) for k, v in (fixed_params or {}).items()}
         bad = [k for k in self.fixed_params if k not in specs or k in names]
         if bad:
@@ -340,11 +347,7 @@ class EnvTuningProblem(TaskProblem):
         self.objective_columns = tuple(cols)
         cons = DEFAULT_CONSTRAINTS if constraints is None else constraints
         self.constraints = tuple((str(k), float(v)) for k, v in cons.items())
-        if space == "unit":
-            xl, xu = -np.ones(len(names)), np.ones(len(names))
-        else:
-            xl = np.array([math.log10(p.low) if p.log else p.low for p in self.specs])
-            xu = np.array([math.log10(p.high) if p.log else p.high for p in self.specs])
+        xl, xu = self.param_space.bounds(space)
         super().__init__(
             n_var=len(names),
             xl=xl,
@@ -360,25 +363,15 @@ class EnvTuningProblem(TaskProblem):
     # -------------------------------------------------------------- mapping
     def x_to_params(self, x: np.ndarray) -> dict[str, float]:
         """Controller parameter values of a point (searched ones only)."""
-        out = {}
-        for p, v in zip(self.specs, np.asarray(x, float), strict=True):
-            if self.space == "unit":
-                out[p.name] = p.from_unit(float(v))
-            else:
-                val = 10.0 ** float(v) if p.log else float(v)
-                out[p.name] = min(p.high, max(p.low, val))
-        return out
+        return self.param_space.from_x(x, self.space)
 
     def params_to_x(self, params: Mapping[str, float]) -> np.ndarray:
         """Inverse of :meth:`x_to_params` (missing names: the controller defaults)."""
-        x = []
-        for p in self.specs:
-            v = float(params.get(p.name, self.defaults[p.name]))
-            if self.space == "unit":
-                x.append(p.to_unit(v))
-            else:
-                x.append(math.log10(v) if p.log else v)
-        return np.clip(np.array(x), self.xl, self.xu)
+        return self.param_space.to_x(params, self.space, self.defaults)
+
+    def task_params(self, x: np.ndarray) -> dict[str, float]:
+        """Every parameter value an evaluation of ``x`` runs with: fixed and searched."""
+        return {**self.fixed_params, **self.x_to_params(x)}
 
     def default_x(self) -> np.ndarray:
         """The point of the controller's default parameters."""
@@ -392,7 +385,7 @@ class EnvTuningProblem(TaskProblem):
 
     # ---------------------------------------------------------------- tasks
     def make_task(self, x: np.ndarray) -> EnvTask:
-        params = {**self.fixed_params, **self.x_to_params(x)}
+        params = self.task_params(x)
         return EnvTask(
             env_id=self.env_id,
             params=tuple(sorted(params.items())),

@@ -329,14 +329,12 @@ class TuneResult:
     ) -> dict[str, pd.DataFrame]:
         """Closed-loop runs (the runner's DataFrames) of the defaults and the selected point.
 
-        Each point is run once on scenario ``seed`` through the env with its parameters as a
-        constant action, exactly as the tuner evaluated it; use the result with
+        Each point is run once on scenario ``seed`` with the env's episodes, exactly as the
+        tuner evaluated it; use the result with
         :func:`train_envs.plotting.speed_distance_figure` for an overlay.
         """
-        import gymnasium as gym
-
         import train_envs  # noqa: F401  (registers the ids)
-        from train_envs.envs import params_to_action
+        from train_envs.envs.evaluation import evaluate_env_params
 
         if not isinstance(self.problem, EnvTuningProblem):
             raise TypeError("trajectories needs an EnvTuningProblem")
@@ -347,18 +345,15 @@ class TuneResult:
                 points["selected"] = np.asarray(self.selected["x"], float)
         out: dict[str, pd.DataFrame] = {}
         for name, x in points.items():
-            env = gym.make(prob.env_id, config=dict(prob.config))
-            try:
-                params = {**prob.fixed_params, **prob.x_to_params(np.asarray(x, float))}
-                action = params_to_action(env, params)
-                env.reset(seed=int(seed))
-                done = False
-                while not done:
-                    _, _, term, trunc, _ = env.step(action)
-                    done = term or trunc
-                out[name] = env.unwrapped.loop.dataframe()
-            finally:
-                env.close()
+            frames: dict[int, pd.DataFrame] = {}
+            evaluate_env_params(
+                prob.env_id,
+                prob.task_params(np.asarray(x, float)),
+                seeds=[int(seed)],
+                config=prob.config,
+                frames=frames,
+            )
+            out[name] = frames[int(seed)]
         return out
 
 

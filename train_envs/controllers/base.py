@@ -26,7 +26,9 @@ class TunableParam:
     """One tuning parameter: name, bounds, scale and default.
 
     ``log=True`` means the parameter is searched on a logarithmic scale (weights);
-    :meth:`from_unit` / :meth:`to_unit` map between the parameter and [−1, 1].
+    :meth:`from_unit` / :meth:`to_unit` map between the parameter and [−1, 1]. The
+    ordered parameters of an env or a tuning problem, with these maps and the tuner's
+    native scale, are a :class:`train_envs.controllers.params.ParamSpace`.
     """
 
     name: str

@@ -1,8 +1,14 @@
-"""Evaluate a driver (fixed parameters, a policy, or the controller's defaults) on an env id.
+"""Evaluate on an env id: fixed parameters through the runner, or a driver step by step.
 
-This is the function the tuners and the agents call: it runs whole episodes through
-the registered env and returns one row per episode with every metric of
-:func:`train_envs.metrics.episode_metrics` plus the return and the episode length.
+:func:`evaluate_env_params` runs fixed controller parameters over seeds on a registered
+env id through the runner's :func:`train_envs.simulation.evaluate_params`, with the
+env's own episodes (:class:`EnvEpisodes`: its reset's scenario draw and seeding, its
+step cap); the tuners call it. :func:`evaluate` runs a driver (fixed parameters as a
+constant action, a policy, or the controller's defaults) by stepping the env, so its
+table also carries the return and the episode length; its seeds, rows and table are
+the runner's (:func:`~train_envs.simulation.seed_list`,
+:func:`~train_envs.simulation.episode_row`, :func:`~train_envs.simulation.metrics_table`).
+Both can reuse the env across calls (:class:`EnvCache`).
 """
 
 from __future__ import annotations
@@ -17,6 +23,16 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pandas as pd
+
+from train_envs.controllers.params import ParamSpace
+from train_envs.simulation import (
+    ClosedLoop,
+    Episodes,
+    episode_row,
+    evaluate_params,
+    metrics_table,
+    seed_list,
+)
 
 Driver = Mapping[str, float] | Callable[[np.ndarray], np.ndarray] | Any | None
 
@@ -145,22 +161,87 @@ def params_to_action(env: gym.Env, params: Mapping[str, float]) -> np.ndarray:
     floating-point precision; a float32 cast would move them by ~1e-7 relative.
     """
     base = env.unwrapped
-    specs = base.param_specs
-    unknown = set(params) - {p.name for p in specs}
-    if unknown:
-        raise ValueError(
-            f"params {sorted(unknown)} are not actions of this env; allowed: "
-            f"{[p.name for p in specs]}"
-        )
+    return ParamSpace(base.param_specs).encode_action(params, _env_defaults(base))
+
+
+def _env_defaults(base: Any) -> dict[str, float]:
     # the env's own defaults, not the controller's current values (a reused env's
     # controller still holds the last episode's parameters until the next reset)
     if hasattr(base, "default_params"):
-        defaults = base.default_params()
-    else:
-        defaults = base.controller.get_params()
-    return np.array(
-        [p.to_unit(p.check(params.get(p.name, defaults[p.name]))) for p in specs], dtype=np.float64
-    )
+        return base.default_params()
+    return base.controller.get_params()
+
+
+class EnvEpisodes(Episodes):
+    """The episodes of a built env, for :func:`~train_envs.simulation.evaluate_params`.
+
+    :meth:`start` resets the env with the seed (its scenario draw, episode seed and
+    default parameters), then sets the given native values of its exposed parameters
+    (validated; the others keep the env's defaults) on the env's controller, as the
+    env's first step would. Episodes end where the env's would
+    (``max_episode_steps`` env steps of ``decision_interval`` control steps).
+    """
+
+    def __init__(self, env: gym.Env, *, ids: Mapping[str, Any] | None = None) -> None:
+        base = env.unwrapped
+        self.env = env
+        self.space = ParamSpace(base.param_specs)
+        self.defaults = _env_defaults(base)
+        cfg = base.config
+        cap = cfg["max_episode_steps"]
+        self.ids = dict(ids or {})
+        self.extra = {}
+        self.max_steps = int(cap) * int(cfg["decision_interval"]) if cap else None
+
+    def start(self, seed: int, params: Mapping[str, float] | None) -> ClosedLoop:
+        values = self.space.complete(params or {}, self.defaults)
+        self.env.reset(seed=seed)
+        base = self.env.unwrapped
+        if values != {n: self.defaults[n] for n in values}:
+            base.controller.set_params(**values)
+            # a reused env rebuilds a controller that ran other parameters
+            # (TrainTuningEnv.renew_controller)
+            base._params_changed = True
+        return base.loop
+
+
+def evaluate_env_params(
+    env_id: str,
+    params: Mapping[str, float] | None = None,
+    *,
+    seeds: Sequence[int] | Iterable[int] | None = None,
+    episodes: int | None = None,
+    config: Mapping[str, Any] | None = None,
+    label: str | None = None,
+    reuse_env: bool = False,
+    frames: dict[int, pd.DataFrame] | None = None,
+) -> pd.DataFrame:
+    """Native parameter values on ``env_id`` over seeds; one row per episode.
+
+    The runner's metrics table (:func:`~train_envs.simulation.evaluate_params`) with
+    ``env`` and ``driver`` columns first. The values given are exactly those the
+    controller runs with. ``reuse_env``: see :func:`evaluate`; ``frames``: see
+    :func:`~train_envs.simulation.evaluate_params`.
+    """
+    params = dict(params or {})
+    env = ENV_CACHE.acquire(env_id, config) if reuse_env else _make(env_id, config)
+    ok = False
+    try:
+        source = EnvEpisodes(env, ids={"env": env_id, "driver": label or _label(params)})
+        df = evaluate_params(
+            source, params, seeds=seeds, episodes=episodes, frames=frames, partial=False
+        )
+        ok = True
+    finally:
+        if reuse_env and ok:
+            ENV_CACHE.release(env_id, config, env)
+        else:
+            env.close()
+    return df
+
+
+def _make(env_id: str, config: Mapping[str, Any] | None) -> gym.Env:
+    return gym.make(env_id, config=dict(config or {}))
 
 
 def _policy_fn(env: gym.Env, driver: Driver) -> Callable[[np.ndarray], np.ndarray]:
@@ -197,17 +278,13 @@ def evaluate(
     :data:`ENV_CACHE` (built on first use) and puts it back afterwards instead of
     building and closing one; the table is the same bit for bit.
     """
-    if seeds is None:
-        seeds = range(episodes or 1)
-    seeds = [int(s) for s in seeds]
-    if reuse_env:
-        env = ENV_CACHE.acquire(env_id, config)
-    else:
-        env = gym.make(env_id, config=dict(config or {}))
+    seeds = seed_list(seeds, episodes)
+    env = ENV_CACHE.acquire(env_id, config) if reuse_env else _make(env_id, config)
     rows = []
     ok = False
     try:
         policy = _policy_fn(env, driver)
+        ids = {"env": env_id, "driver": label or _label(driver)}
         for i, seed in enumerate(seeds):
             obs, _ = env.reset(seed=seed)
             ret, n, done, info = 0.0, 0, False, {}
@@ -217,16 +294,14 @@ def evaluate(
                 n += 1
                 done = term or trunc
             rows.append(
-                {
-                    "env": env_id,
-                    "driver": label or _label(driver),
-                    "episode": i,
-                    "seed": seed,
-                    "scenario": env.unwrapped.scenario.name,
-                    "return": ret,
-                    "env_steps": n,
-                    **info.get("episode_metrics", {}),
-                }
+                episode_row(
+                    i,
+                    seed,
+                    env.unwrapped.scenario.name,
+                    info.get("episode_metrics", {}),
+                    ids=ids,
+                    extra={"return": ret, "env_steps": n},
+                )
             )
         ok = True
     finally:
@@ -234,7 +309,7 @@ def evaluate(
             ENV_CACHE.release(env_id, config, env)
         else:
             env.close()
-    return pd.DataFrame(rows)
+    return metrics_table(rows)
 
 
 def _label(driver: Driver) -> str:

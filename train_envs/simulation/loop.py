@@ -1,10 +1,11 @@
 """The one closed-loop runner: plant + line + reference + controller, step by step.
 
 :class:`ClosedLoop` is used by everything that runs a train: :func:`simulate` (a whole
-episode → DataFrame + metrics), the Gymnasium envs (one env step = a few control
-steps, with parameters changed in between) and the tuners (through :func:`simulate`).
-It records one row per control period into preallocated arrays, so a failure part-way
-loses nothing: :class:`SimulationError` carries the partial result.
+episode → DataFrame + metrics), :func:`train_envs.simulation.evaluation.evaluate_params`
+(parameters over seeds → metrics table), and the Gymnasium envs (one env step = a few
+control steps, with parameters changed in between). It records one row per control
+period into preallocated arrays, so a failure part-way loses nothing:
+:class:`SimulationError` carries the partial result.
 """
 
 from __future__ import annotations
@@ -368,12 +369,28 @@ def simulate(
         ctrl.set_params(**params)
     loop = ClosedLoop(sc, ctrl)
     loop.reset(seed=seed)
+    run_to_end(loop)
+    return loop.result()
+
+
+def run_to_end(loop: ClosedLoop, max_steps: int | None = None, *, partial: bool = True) -> None:
+    """Step a reset ``loop`` until its episode is over, or until ``max_steps`` control
+    steps have run in total (a step cap; ``None``: the scenario's own end).
+
+    A failure part-way raises :class:`SimulationError` with the partial result attached
+    (``partial=False``: the original exception, as an env step raises it).
+    """
     try:
-        while not loop.done:
-            loop.step()
+        if max_steps is None:
+            while not loop.done:
+                loop.step()
+        else:
+            while not loop.done and loop.k < max_steps:
+                loop.step()
     except Exception as exc:  # keep what was computed
+        if not partial:
+            raise
         partial = loop.result(error=f"{type(exc).__name__}: {exc}")
         raise SimulationError(
             f"simulation failed at t={loop.plant.t:.2f} s: {exc}", partial
         ) from exc
-    return loop.result()
