@@ -18,6 +18,12 @@ import pytest
 from golden import cases as golden
 
 ROOT = Path(__file__).resolve().parents[1]
+if json.loads(golden.GOLDEN_FILE.read_text())["blas"] != golden.blas_kernel():
+    pytest.skip(
+        f"goldens made on BLAS kernel {json.loads(golden.GOLDEN_FILE.read_text())['blas']}, "
+        f"this machine runs {golden.blas_kernel()}: regenerate them here (see golden.cases)",
+        allow_module_level=True,
+    )
 STORED = golden.load("compiled")
 INTERPRETED = golden.load("interpreted")
 NAMES = sorted(STORED)

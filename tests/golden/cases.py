@@ -6,7 +6,9 @@ digest covers the float64 columns of the run's DataFrame (timing columns exclude
 episode metrics, and for envs the observations and rewards of every step.  The digests
 are computed with the compiled twins on and off; both must equal the stored value.
 
-The file holds one table per mode (``compiled``, ``interpreted``): the tube MPC's
+The digests hold for the BLAS kernel they were made on (``blas`` in the file; on another
+kernel the tests skip, saying so, until the file is regenerated there).  The file holds
+one table per mode (``compiled``, ``interpreted``): the tube MPC's
 reported cost ``J`` (a diagnostic column, not a command) is summed in another order by
 its compiled twin and differs in the last bit (≤ 6e-16 relative); every other digest is
 the same in both tables.
@@ -227,6 +229,18 @@ def compute(names: list[str] | None = None) -> dict[str, str]:
     return {n: table[n]() for n in (names or list(table))}
 
 
+def blas_kernel() -> str:
+    """The BLAS library and kernel numpy runs on (e.g. ``openblas:Haswell``): another
+    kernel rounds dot products differently, and the MPCs' trajectories (OSQP at its
+    iteration limit, unconstrained-first decisions near a binding row) follow."""
+    from threadpoolctl import threadpool_info
+
+    for info in threadpool_info():
+        if info.get("user_api") == "blas":
+            return f"{info.get('internal_api')}:{info.get('architecture')}"
+    return "unknown"
+
+
 def mode() -> str:
     """``compiled`` or ``interpreted``: the table this process's results belong to."""
     from train_envs import _jit
@@ -261,6 +275,7 @@ if __name__ == "__main__":
     if args[:1] == ["--write"]:
         table = json.loads(GOLDEN_FILE.read_text()) if GOLDEN_FILE.exists() else {}
         table[mode()] = compute()
+        table["blas"] = blas_kernel()
         GOLDEN_FILE.write_text(json.dumps(table, indent=1, sort_keys=True) + "\n")
     else:
         json.dump(compute(args or None), sys.stdout, indent=1, sort_keys=True)
