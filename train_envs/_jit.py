@@ -13,7 +13,7 @@ Call sites do not branch on compilation: a module registers its reference functi
 :func:`implementation` (the compiled twin or the reference, chosen once per process).
 
 The helpers below are written once and called from the kernels of
-:mod:`train_envs.controllers._kernels` and :mod:`train_envs.plants._kernels`.  numba's
+:mod:`train_envs.controllers.tube.kernels` and the plant step.  numba's
 disk cache checks only the file of the compiled function itself: after changing a helper
 here, delete the ``*.nbi``/``*.nbc`` files under ``train_envs/**/__pycache__`` (``make
 clean`` does) or the kernels keep the old helper.

@@ -12,9 +12,8 @@ from train_envs.controllers.base import ControlContext, Controller, Observation,
 from train_envs.controllers.dmc import DMCController
 from train_envs.controllers.fuzzy_pid import FuzzyPIDController
 from train_envs.controllers.pid import PIDController
-from train_envs.controllers.rsmpc import RobustSelfTriggeredMPC
 from train_envs.controllers.train_mpc import MultiCarMPC, PointMassMPC
-from train_envs.controllers.tube_mpc import TubeMPC
+from train_envs.controllers.tube import RobustSelfTriggeredMPC, TubeMPC
 
 
 def _tracking(**kw: Any) -> Controller:

@@ -137,7 +137,7 @@ class ClosedLoop:
             names += ["coupler_force_max_N", "coupler_def_max_m"]
         # one row per control period, in column order; the rows are appended to a list
         # (cheap per step) and moved into the preallocated table when columns are read.
-        # Column-major, so that every column is a contiguous array as before.
+        # Column-major, so that every column is a contiguous array.
         self._data = np.full((n, len(names)), np.nan, order="F")
         self._cols: dict[str, np.ndarray] = {name: self._data[:, j] for j, name in enumerate(names)}
         self._rows: list[tuple[float, ...]] = []
