@@ -315,7 +315,7 @@ class DMCController(Controller):
             fade_mps=self.catchup_fade,
             hold_mps=self.stop_hold if ctx.s_stop_m is not None else 0.0,
         )
-        self._shape = SatisfactionShape.build(
+        self.satisfaction_shape = SatisfactionShape.build(
             dt, self.t_bounds_samples, self.t_widths_samples, self.eps_y, self.delta_y,
             self.e_tol, self.edot_tol, self.combine,
         )
@@ -413,7 +413,8 @@ class DMCController(Controller):
             dU, lev, env = self.qp.classic_plan(e_w, u_prev, v_plan, tr, ff, M)
             if dU is not None:
                 self._dU_shift[:-1] = dU[1:]
-                self.qp.adopt(dU, lev)
+                # the core's warm start: what its own unconstrained shortcut leaves
+                self.qp.core.adopt_unconstrained(dU, lev.reshape(-1, 1))
                 return lev.item(0), UNCONSTRAINED_INFO
         lo, hi = tr.envelope_lists(v_plan) if env is None else env
         sol = self.optimise(w, y_free, u_prev, [(x - ff) / M for x in lo],
@@ -468,7 +469,7 @@ class DMCController(Controller):
 
         # satisfaction, softening factor, softened reference (§2, §4)
         y_pred = predict(yP0_arr, self.A_dyn, self._dU_shift).tolist()
-        t_r, mu_t, mu_y, J = satisfaction(e, edot, y_pred, y_r, self._shape)
+        t_r, mu_t, mu_y, J = satisfaction(e, edot, y_pred, y_r, self.satisfaction_shape)
         alpha = softening_factor(J, *self._alpha_law)
         w = self._softened(y, y0_ref, y_r, alpha)
 

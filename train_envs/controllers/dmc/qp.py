@@ -163,7 +163,3 @@ class DMCProblem:
             for lo_i, hi_i, x in zip(lo, hi, levels, strict=True)
         )
         return (dU if inside else None), lev, (lo, hi)
-
-    def adopt(self, dU: np.ndarray, levels: np.ndarray) -> None:
-        """Tell the core the step's plan was the unconstrained optimum (its warm start)."""
-        self.core.adopt_unconstrained(dU, levels.reshape(-1, 1))
