@@ -56,7 +56,7 @@ from train_envs.controllers.dmc.step_response import (
     tail_ratio,
 )
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
-from train_envs.trains import G
+from train_envs.trains import KMH, G
 from train_envs.validation import (
     check_choice,
     check_finite,
@@ -64,8 +64,6 @@ from train_envs.validation import (
     check_positive,
     check_range,
 )
-
-KMH = 1.0 / 3.6
 
 
 class DMCController(Controller):
@@ -81,7 +79,10 @@ class DMCController(Controller):
     samples, scaled by Δt), the catch-up and stop hold of the setpoint, the tail rule
     (``"model"``/``"linear"``), the reference form (``"level"``/``"error"``), the QP's
     ``soft_penalty`` and ``osqp_eps``, and ``classic_law`` (try the unconstrained plan
-    first). ``compute``'s info holds α, h_c, J, μ_t, μ_y, t_r, the prediction error
+    first). ``v_nominal_mps`` is the speed the Davis slope is linearised at (default:
+    the reference's mean speed, length / duration); a second-order actuator is modelled
+    by the lag ``ctx.actuator_tau_s`` (the context carries no ω_n, ζ). ``compute``'s
+    info holds α, h_c, J, μ_t, μ_y, t_r, the prediction error
     e_c, the DMC and feedforward forces and the solver fields.
     """
 
