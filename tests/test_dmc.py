@@ -12,14 +12,31 @@ from train_envs.controllers import CONTROLLERS, DMCController, make_controller
 from train_envs.controllers._common import input_shares
 from train_envs.controllers.dmc import (
     H_TABLE,
+    SatisfactionShape,
+    add_move,
+    correct_and_shift,
+    correction_coefficient,
+    correction_rules,
     dmc_gain,
     dynamic_matrix,
     extend_step_response,
+    feedforward_force,
+    filtered_rate,
+    output_satisfaction,
+    position_catchup,
+    response_time,
+    satisfaction,
     shift_prediction,
     softened_reference,
+    softened_reference_error,
     softening_factor,
+    softening_weights,
     step_response,
+    time_satisfaction,
+    with_catchup,
 )
+from train_envs.controllers.dmc import controller as dmc_controller
+from train_envs.controllers.fuzzy import trapmf
 from train_envs.plants.multi_car import ActuatorParams, TrainPlant
 from train_envs.scenarios import DisturbanceSpec, get_scenario
 from train_envs.simulation import ClosedLoop, simulate
@@ -133,14 +150,137 @@ def test_softening_and_its_adjustment_law():
     y_r = np.linspace(10.0, 11.0, 15)
     np.testing.assert_allclose(softened_reference(9.0, y_r, 0.0), y_r)
     np.testing.assert_allclose(softened_reference(9.0, y_r, 0.5)[0], 0.5 * 9.0 + 0.5 * y_r[0])
+    # the cached weights give the same reference; the error form equals the level form
+    # for a constant setpoint and follows a ramp without the level form's lag
+    w = softened_reference(9.0, y_r, 0.7)
+    assert softened_reference(9.0, y_r, 0.7, softening_weights(0.7, 15)) == w
+    flat = [10.0] * 15
+    np.testing.assert_allclose(softened_reference_error(9.0, 10.0, flat, 0.7),
+                               softened_reference(9.0, flat, 0.7), rtol=1e-14)
+    ramp = list(10.0 + 0.1 * np.arange(1, 16))
+    err = softened_reference_error(10.0, 10.0, ramp, 0.7)
+    assert err == ramp  # on the ramp from its own setpoint: no softening at all
+    assert all(x < r for x, r in zip(softened_reference(10.0, ramp, 0.7), ramp, strict=True))
     J = np.linspace(0.0, 1.0, 101)
     for gamma in (-5.0, 0.0, 2.0, 8.0):
         a = np.array([softening_factor(j, 0.1, 0.6, gamma) for j in J])
         assert a[0] == pytest.approx(0.6) and a[-1] == pytest.approx(0.1)
         assert np.all(np.diff(a) <= 1e-12)  # decreasing in J
+    assert softening_factor(-0.5, 0.1, 0.6, 2.0) == softening_factor(0.0, 0.1, 0.6, 2.0)
     # rule table: even, NB for large |e| decreasing fast, PB for small e increasing fast
     assert np.array_equal(H_TABLE, H_TABLE[::-1, ::-1])
     assert H_TABLE[6, 0] == 0 and H_TABLE[3, 6] == 6 and H_TABLE[3, 3] == 3
+
+
+def test_satisfaction_laws():
+    # response time: stable, error decreasing (|e|/|ė|, capped), error increasing
+    assert response_time(0.001, 0.001, 0.01, 0.02, 320.0) == 0.0
+    assert response_time(0.5, -0.1, 0.01, 0.02, 320.0) == pytest.approx(5.0)
+    assert response_time(0.5, -1e-4, 0.01, 0.02, 320.0) == 320.0
+    assert response_time(0.5, 0.1, 0.01, 0.02, 320.0) == 320.0
+    shape = SatisfactionShape.build(0.2, (10.0, 160.0), (6.0, 6.0), 0.05, 0.01, 0.01, 0.02)
+    assert shape.t_trap == pytest.approx((0.8, 2.0, 32.0, 33.2)) and shape.t_big == 320.0
+    assert time_satisfaction(0.0, *shape.t_trap) == 1.0  # the stable state satisfies
+    assert time_satisfaction(0.5, *shape.t_trap) == 0.0
+    assert time_satisfaction(1.4, *shape.t_trap) == pytest.approx(0.5)
+    # μ_y: the mean trapezoid membership of the predicted errors, symmetric or not
+    x = RNG.normal(0.0, 0.06, 15)
+    y_r = list(10.0 + x)
+    y_pred = [10.0] * 15
+    for corners in (shape.y_trap, (-0.08, -0.03, 0.05, 0.06), (-0.06, -0.05, 0.05, 0.06)):
+        mu = output_satisfaction(y_pred, y_r, *corners)
+        expect = float(np.mean(trapmf(np.subtract(y_pred, y_r), *corners)))
+        assert mu == expect
+    assert output_satisfaction(y_pred, y_pred, *shape.y_trap) == 1.0
+    t_r, mu_t, mu_y, J = satisfaction(0.5, 0.1, y_pred, y_r, shape)
+    assert (t_r, mu_t) == (320.0, 0.0) and J == min(mu_t, mu_y) == 0.0
+    prod = SatisfactionShape.build(0.2, (10.0, 160.0), (6.0, 6.0), 0.05, 0.01, 0.01, 0.02,
+                                   combine="product")
+    t_r, mu_t, mu_y, J = satisfaction(0.5, -0.1, y_pred, y_r, prod)
+    assert mu_t == 1.0 and J == mu_t * mu_y
+
+
+def test_correction_filter_feedforward_and_catchup_laws():
+    rules = correction_rules(30.0, 30.0)
+    assert correction_coefficient(0.0, 0.0, rules, 0.8, 0.05, 0.05) == pytest.approx(0.8)
+    # large error decreasing fast → NB → smaller h; small error increasing fast → PB
+    assert correction_coefficient(1.0, -1.0, rules, 0.8, 0.05, 0.05) == pytest.approx(0.65)
+    assert correction_coefficient(0.0, 1.0, rules, 0.8, 0.05, 0.05) == pytest.approx(0.95)
+    assert correction_coefficient(0.0, 1.0, rules, 0.99, 0.1, 0.05) == 1.0  # clipped
+    assert correction_coefficient(1.0, -1.0, rules, 0.1, 0.1, 0.05) == 0.05
+    # ė filter: a ramp e = c t is followed with gain Δt / (T_f + Δt)
+    rate, e_prev, g = 0.0, 0.0, 0.2 / (0.4 + 0.2)
+    for k in range(1, 60):
+        rate = filtered_rate(rate, 0.1 * k * 0.2, e_prev, 0.2, g)
+        e_prev = 0.1 * k * 0.2
+    assert rate == pytest.approx(0.1, rel=1e-9)
+    assert feedforward_force(10.0, 5e3, 300.0, 4e6, 2.0) == pytest.approx(5e3 - 3e3 + 8e3)
+    assert position_catchup(101.0, 100.0, 0.1, 0.2) == pytest.approx(0.1)
+    assert position_catchup(110.0, 100.0, 0.1, 0.2) == 0.2
+    assert position_catchup(90.0, 100.0, 0.1, 0.2) == -0.2
+    assert with_catchup([10.0, 0.5, 0.0], 0.2, 1.0) == [10.2, 0.6, 0.0]  # fades to rest
+
+
+def test_correction_and_shift_of_the_prediction_vector():
+    rng = np.random.default_rng(7)
+    y0 = rng.normal(10.0, 0.1, 8)
+    a = np.cumsum(rng.uniform(0.0, 0.2, 8))
+    y1 = add_move(y0, a, 0.3, np.empty(8))
+    np.testing.assert_array_equal(y1, y0 + a * 0.3)
+    for n, ratio in ((8, 0.99), (2, 1.0)):
+        h = np.full(n, 0.7)
+        h[0] = 1.0
+        out = correct_and_shift(y1[:n], 0.05, 0.7, ratio, np.empty(n))
+        np.testing.assert_allclose(out, shift_prediction(y1[:n] + h * 0.05, ratio), rtol=1e-14)
+
+
+def test_the_step_runs_the_documented_laws(monkeypatch):
+    """Each law runs once per step and what the step logs is what the law returned."""
+    calls: dict[str, list] = {}
+
+    def spy(name):
+        law = getattr(dmc_controller, name)
+
+        def wrapped(*args):
+            out = law(*args)
+            calls.setdefault(name, []).append((args, out))
+            return out
+
+        monkeypatch.setattr(dmc_controller, name, wrapped)
+
+    for name in ("correction_coefficient", "feedforward_force", "satisfaction",
+                 "softening_factor", "softened_reference", "filtered_rate"):
+        spy(name)
+    sc = get_scenario("paper004_urban")
+    ctrl = DMCController()
+    _, infos = _run(ctrl, sc, n_max=300)
+    n = len(infos)
+    assert all(len(calls[k]) == n for k in calls), {k: len(v) for k, v in calls.items()}
+    p = ctrl.get_params()
+    for i, info in enumerate(infos):
+        (e, edot, rules, h0, k_h, h_min), h_c = calls["correction_coefficient"][i]
+        assert (e, edot, h_c) == (info["error"], info["error_rate"], info["h_c"])
+        assert (h0, k_h, h_min, rules) == (p["h0"], p["k_h"], ctrl.h_min, ctrl.rules)
+        assert calls["feedforward_force"][i][1] == info["u_ff_N"]
+        (e, edot, y_pred, y_r, shape), sat = calls["satisfaction"][i]
+        assert sat == (info["t_r"], info["mu_t"], info["mu_y"], info["J"])
+        assert (e, edot) == (info["error"], info["error_rate"])
+        (J, *bounds), alpha = calls["softening_factor"][i]
+        assert J == info["J"] and alpha == info["alpha"]
+        assert tuple(bounds) == (p["alpha_min"], p["alpha_max"], p["alpha_trend"])
+        (y, y_r_w, alpha_w, _), w = calls["softened_reference"][i]
+        assert alpha_w == info["alpha"] and y_r_w is y_r and len(w) == ctrl.P
+        assert calls["filtered_rate"][i][1] == info["error_rate"]
+    # the logged values are the laws applied to the logged inputs
+    for info in infos:
+        assert info["alpha"] == softening_factor(info["J"], p["alpha_min"], p["alpha_max"],
+                                                 p["alpha_trend"])
+        assert info["h_c"] == correction_coefficient(info["error"], info["error_rate"],
+                                                     ctrl.rules, p["h0"], p["k_h"], ctrl.h_min)
+        assert info["t_r"] == response_time(info["error"], info["error_rate"], ctrl.e_tol,
+                                            ctrl.edot_tol, ctrl.satisfaction_shape.t_big)
+        assert info["mu_t"] == time_satisfaction(info["t_r"], *ctrl.satisfaction_shape.t_trap)
+        assert info["J"] == min(info["mu_t"], info["mu_y"])
 
 
 # ============================================================== closed loop
