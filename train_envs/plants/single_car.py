@@ -164,17 +164,17 @@ def run_single(
 #: the name of the single-car step in :data:`train_envs._jit.TWINS`
 SINGLE_CAR_STEP = "plants.single_car_step"
 
-_LISTS: dict[int, tuple[np.ndarray, list[float]]] = {}
+_LISTS: dict[int, tuple[tuple[np.ndarray, ...], tuple[list[float], ...]]] = {}
 
 
-def _as_list(a: np.ndarray) -> list[float]:
-    """``a.tolist()``, kept for arrays that do not change (the constants and the gradient
-    tables, looked up on every step)."""
-    hit = _LISTS.get(id(a))
-    if hit is None or hit[0] is not a:
+def _as_lists(c: np.ndarray, xl: np.ndarray, y0l: np.ndarray, sl: np.ndarray):
+    """``(c, xl, y0l, sl)`` as lists, kept per plant: the constants and the gradient
+    table do not change between the calls of one plant."""
+    hit = _LISTS.get(id(c))
+    if hit is None or hit[0][0] is not c or hit[0][1] is not xl:
         if len(_LISTS) > 256:
             _LISTS.clear()
-        hit = _LISTS[id(a)] = (a, a.tolist())
+        hit = _LISTS[id(c)] = ((c, xl), (c.tolist(), xl.tolist(), y0l.tolist(), sl.tolist()))
     return hit[1]
 
 
@@ -193,24 +193,12 @@ def single_car_step(
     has_dist: bool,
 ) -> int:
     """:func:`run_single` on Python floats and lists (the reference of the twin): the same
-    arguments, ``st`` and ``bl`` updated in place.  ``c``, ``xl``, ``y0l`` and ``sl`` must
-    not change between calls (their lists are kept)."""
+    arguments, ``st`` and ``bl`` updated in place.  ``c`` and the table ``xl, y0l, sl``
+    must not change between calls with the same ``c`` (their lists are kept)."""
     stl = st.tolist()
     bll = bl.tolist()
-    head = run_single(
-        stl,
-        bll,
-        head,
-        k,
-        order,
-        _as_list(c),
-        _as_list(xl),
-        _as_list(y0l),
-        _as_list(sl),
-        has_tab,
-        wd.tolist(),
-        has_dist,
-    )
+    cl, xll, y0ll, sll = _as_lists(c, xl, y0l, sl)
+    head = run_single(stl, bll, head, k, order, cl, xll, y0ll, sll, has_tab, wd.tolist(), has_dist)
     st[:] = stl
     bl[:] = bll
     return head
