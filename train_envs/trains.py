@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from train_envs.plants.physics import davis_N, davis_sq_N
 from train_envs.validation import check_nonnegative, check_positive, check_range
 
 G = 9.81  # m/s², gravitational acceleration used throughout
@@ -144,9 +145,8 @@ class TrainParams:
     def _traction_consts(self) -> tuple[float, float | None, float | None, float, float, float]:
         """``(F_t, P_t, M'a_max, a, b, c)`` of the traction envelope, ``None`` for no limit.
 
-        Computed once per (frozen) parameter set; ``M'a_max`` is the product the envelope
-        methods used to form on every call (same operands, same rounding), so the cached
-        values reproduce them exactly.
+        Computed once per (frozen) parameter set: ``M'a_max`` is the product
+        ``inertial_mass_kg * max_accel_mps2``.
         """
         fin = math.isfinite
         return (
@@ -172,7 +172,7 @@ class TrainParams:
     def resistance_N(self, v: float) -> float:
         """Davis resistance of the whole train at speed ``v`` [m/s] (opposes motion)."""
         av = abs(v)
-        r = self.davis_a_N + self.davis_b_Ns_per_m * av + self.davis_c_Ns2_per_m2 * av * av
+        r = davis_N(self.davis_a_N, self.davis_b_Ns_per_m, self.davis_c_Ns2_per_m2, av)
         return math.copysign(r, v) if v != 0 else 0.0
 
     def max_traction_N(self, v: float) -> float:
@@ -183,7 +183,7 @@ class TrainParams:
             f = min(f, P / av)
         if MA is not None:
             # M (1 + ρ) a_max + R(|v|), R(0) = 0 (as resistance_N)
-            f = min(f, MA + ((a + b * av + c * av * av) if av != 0 else 0.0))
+            f = min(f, MA + (davis_N(a, b, c, av) if av != 0 else 0.0))
         return f
 
     def envelope_N(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -191,7 +191,7 @@ class TrainParams:
         F, P, MA, a, b, c = self._traction_consts
         Fb, Pb, Ffr, MD = self._brake_consts
         av = np.abs(np.asarray(v, dtype=float))
-        if av.ndim == 0:  # a scalar speed: same values and result types as ever
+        if av.ndim == 0:  # a scalar speed: numpy scalars, the same values as the arrays
             lo, hi = self.envelope_N(av.reshape(1))
             return lo[0], hi[0] if MA is not None else hi.reshape(())
         pos = av > 0
@@ -201,7 +201,7 @@ class TrainParams:
         else:
             hi = np.full(av.shape, F)
         if MA is not None:
-            davis = a + b * av + c * av**2
+            davis = davis_sq_N(a, b, c, av)  # (numpy's av**2 is av * av)
             hi = np.minimum(hi, MA + np.where(pos, davis, 0.0))
         if Pb is not None:
             lo = np.minimum(Fb, np.divide(Pb, av, out=np.full(av.shape, np.inf), where=pos))
@@ -230,7 +230,7 @@ class TrainParams:
                 if P is not None:
                     hi = min(hi, P / av)
                 if MA is not None:
-                    hi = min(hi, MA + (a + b * av + c * (av * av)))
+                    hi = min(hi, MA + davis_sq_N(a, b, c, av))
                 if Pb is not None:
                     lo = min(lo, Pb / av)
             elif MA is not None:
@@ -259,7 +259,7 @@ class TrainParams:
         if v_hi > 0.0 and P is not None:
             hi = min(hi, P / v_hi)
         if MA is not None:
-            hi = min(hi, MA + ((a + b * v_lo + c * (v_lo * v_lo)) if v_lo > 0.0 else 0.0))
+            hi = min(hi, MA + (davis_sq_N(a, b, c, v_lo) if v_lo > 0.0 else 0.0))
         return -self.max_brake_N(v_hi), hi
 
     def max_brake_N(self, v: float) -> float:

@@ -1,22 +1,36 @@
-"""Train plants: single-point (paper 001) and multi-car cascade (papers 000, 002, 003)."""
+"""Train plants: single-point (paper 001) and multi-car cascade (papers 000, 002, 003).
 
-from train_envs.plants.multi_car import ActuatorParams, TrainPlant
-from train_envs.plants.point_mass import PointMassTrain
-from train_envs.plants.resistance import (
-    BoundedRandomDisturbance,
-    ConstantWind,
-    DavisVariation,
-    Disturbance,
-    HarmonicWind,
-)
+The names below load on first access, so that :mod:`train_envs.trains` can use
+:mod:`train_envs.plants.physics` without importing the plants that use the trains.
+"""
 
-__all__ = [
-    "ActuatorParams",
-    "BoundedRandomDisturbance",
-    "ConstantWind",
-    "DavisVariation",
-    "Disturbance",
-    "HarmonicWind",
-    "PointMassTrain",
-    "TrainPlant",
-]
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_HOMES = {
+    "ActuatorParams": "train_envs.plants.actuator",
+    "TrainPlant": "train_envs.plants.multi_car",
+    "PointMassTrain": "train_envs.plants.point_mass",
+    "BoundedRandomDisturbance": "train_envs.plants.resistance",
+    "ConstantWind": "train_envs.plants.resistance",
+    "DavisVariation": "train_envs.plants.resistance",
+    "Disturbance": "train_envs.plants.resistance",
+    "HarmonicWind": "train_envs.plants.resistance",
+}
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_HOMES))

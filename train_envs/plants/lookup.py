@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from bisect import bisect_right
 from collections.abc import Callable
 
 import numpy as np
+
+from train_envs.plants.physics import gradient_at
 
 
 class PiecewiseLinear:
@@ -25,8 +26,7 @@ class PiecewiseLinear:
         self.x = np.concatenate(([-1e30], np.asarray(x, dtype=float)))
         self.y0 = np.concatenate(([float(y0[0])], np.asarray(y0, dtype=float)))
         self.slope = np.concatenate(([0.0], np.asarray(slope, dtype=float)))
-        # Python-list copies for the scalar path (bisect on a list beats searchsorted
-        # plus numpy scalar conversions by ~3x for one point)
+        # Python-list copies for the scalar path (see docs/design/plants.md)
         self._xl, self._y0l, self._sl = self.x.tolist(), self.y0.tolist(), self.slope.tolist()
 
     @classmethod
@@ -45,8 +45,7 @@ class PiecewiseLinear:
 
     def __call__(self, s):
         if isinstance(s, float):
-            i = bisect_right(self._xl, s) - 1
-            return self._y0l[i] + self._sl[i] * (s - self._xl[i])
+            return gradient_at(self._xl, self._y0l, self._sl, s)
         s = np.asarray(s, dtype=float)
         i = self.x.searchsorted(s, side="right") - 1
         return self.y0[i] + self.slope[i] * (s - self.x[i])

@@ -10,74 +10,53 @@ i = 1..n, coupler j joins car j and car j+1)::
 with f_0 = f_n = 0, L the rest spacing (coupler rest length + car length), R_i the
 per-car Davis resistance (split in proportion to mass, or with the aerodynamic
 ``c v²`` term on the lead car only, as 002 and 003 assume), θ the equivalent gradient
-(gradient + curves) under car i and w(t) a per-unit-mass disturbance.
-
-Actuator of car i, input w_i (the commanded force, saturated by the car's share of the
-traction/braking envelope and delayed by the dead time T_d)::
-
-    order 0 (ideal):        F_i = w_i(t − T_d)
-    order 1 (001 eq. 1–2):  τ Ḟ_i = −F_i + w_i(t − T_d)
-    order 2 (003 §2.2):     F̈_i + 2ζω_n Ḟ_i + ω_n² F_i = ω_n² w_i(t − T_d)
+(gradient + curves) under car i and w(t) a per-unit-mass disturbance.  The actuator
+F_i (ideal, first or second order, with dead time T_d) follows
+:mod:`train_envs.plants.actuator`; the commanded force is saturated by the car's share
+of the traction/braking envelope (:meth:`train_envs.trains.TrainParams.max_traction_N`).
 
 The couplers, kinematics and actuators form the linear part and are integrated
-exactly (matrix exponential); Davis, gradient and disturbances are the nonlinear part,
-integrated to second order (see :mod:`train_envs.plants.integrator`). The simulation
-step ``dt_sim_s`` is independent of the control period: :meth:`step` advances by any
-multiple of it with the command held.
+exactly (matrix exponential); Davis, gradient and disturbances are the nonlinear part
+(:mod:`train_envs.plants.nonlinear`), integrated to second order (see
+:mod:`train_envs.plants.integrator`). The simulation step ``dt_sim_s`` is independent
+of the control period: :meth:`TrainPlant.step` advances by any multiple of it with the
+command held.
 
 Braking to a standstill: when the lead car's speed crosses zero the train is held
 (brakes hold a stopped train); the crossing point is interpolated inside the sub-step
 so that the stopping position is accurate to well under a millimetre. It moves again
 when the net tractive force exceeds the gradient force plus the Davis constant term.
 
-Implementation: at a handful of states numpy's per-call overhead (~1 µs) dwarfs the
-arithmetic.  The whole ETD2 step of the single-point train is one scalar loop
-(:func:`train_envs.plants._kernels.run_single`), compiled by numba where available and
-interpreted on Python floats otherwise; for several cars the nonlinear term, the
-saturation and the energy bookkeeping run on Python floats (the matrix products stay
-BLAS calls).  Both perform the same IEEE operations in the same order as the array
-formulation, so the results are identical to it bit for bit.
+The single-point train steps through one registered scalar loop
+(:mod:`train_envs.plants.single_car`, compiled where numba is available); several
+cars evaluate the nonlinear term and the energy integrals on Python floats around the
+BLAS matrix products.  Every path performs the same IEEE operations in the same order
+as the array formulation.
 """
 
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
-from train_envs._jit import compiled
-from train_envs.plants._kernels import RUN_SINGLE_HELPERS, run_single
+from train_envs._jit import implementation
+from train_envs.plants.actuator import ActuatorParams, linear_model
+from train_envs.plants.energy import np_sum as _np_sum
+from train_envs.plants.energy import power_sums
 from train_envs.plants.integrator import ETD2Integrator
 from train_envs.plants.lookup import PiecewiseLinear
+from train_envs.plants.nonlinear import NonlinearTerm, Table
+from train_envs.plants.physics import car_davis
 from train_envs.plants.resistance import DavisVariation, Disturbance
+from train_envs.plants.single_car import SINGLE_CAR_STEP
 from train_envs.trains import G, TrainParams
-from train_envs.validation import check_finite, check_nonnegative, check_positive, check_range
+from train_envs.validation import check_finite, check_nonnegative, check_range
 
-_NO_DIST = np.zeros(1)  # placeholder array argument of the compiled step
+__all__ = ["ActuatorParams", "TrainPlant", "_np_sum"]
 
-
-@dataclass(frozen=True)
-class ActuatorParams:
-    """Traction/braking actuator: ideal (0), first-order lag (1) or second order (2) + dead time."""
-
-    order: int = 0
-    tau_s: float = 0.4
-    dead_time_s: float = 0.0
-    omega_n_radps: float = 2.0
-    zeta: float = 0.8
-
-    def __post_init__(self) -> None:
-        if self.order not in (0, 1, 2):
-            raise ValueError(f"actuator.order must be 0, 1 or 2, got {self.order}")
-        if self.order == 1:
-            check_positive("actuator.tau_s", self.tau_s)
-        check_nonnegative("actuator.dead_time_s", self.dead_time_s)
-        if self.order == 2:
-            check_positive("actuator.omega_n_radps", self.omega_n_radps)
-            check_positive("actuator.zeta", self.zeta)
+_NO_DIST = np.zeros(1)  # placeholder array argument of the single-car step
 
 
 class TrainPlant:
@@ -135,16 +114,13 @@ class TrainPlant:
         self.m = masses
         self.m_inertial = masses * (1.0 + train.rotating_mass_factor)
         self.share = masses / masses.sum()
-        # per-car Davis coefficients
-        if train.lead_car_aero:
-            self.ca = train.davis_a_N * self.share
-            self.cb = train.davis_b_Ns_per_m * self.share
-            self.cc = np.zeros(n)
-            self.cc[0] = train.davis_c_Ns2_per_m2
-        else:
-            self.ca = train.davis_a_N * self.share
-            self.cb = train.davis_b_Ns_per_m * self.share
-            self.cc = train.davis_c_Ns2_per_m2 * self.share
+        self.ca, self.cb, self.cc = car_davis(
+            train.davis_a_N,
+            train.davis_b_Ns_per_m,
+            train.davis_c_Ns2_per_m2,
+            self.share,
+            train.lead_car_aero,
+        )
         self.lead_aero = train.lead_car_aero
         self.k = train.coupler.stiffness_N_per_m
         self.d = train.coupler.damping_Ns_per_m
@@ -165,88 +141,42 @@ class TrainPlant:
     # ----------------------------------------------------------------- model
     def _build_linear(self) -> None:
         n, order = self.n, self.actuator.order
-        nz = 2 * n + n * order
-        A = np.zeros((nz, nz))
-        B = np.zeros((nz, n))
-        iv = slice(n, 2 * n)
-        A[:n, iv] = np.eye(n)
-        # couplers on the shifted coordinates q_i = x_i + (i-1) L (rest deformation zero)
-        Kc = np.zeros((n, n))
-        for j in range(n - 1):
-            Kc[j, j] -= 1.0
-            Kc[j, j + 1] += 1.0
-            Kc[j + 1, j] += 1.0
-            Kc[j + 1, j + 1] -= 1.0
-        minv = 1.0 / self.m_inertial
-        A[iv, :n] = (self.k * Kc) * minv[:, None]
-        A[iv, iv] = (self.d * Kc) * minv[:, None]
-        if order == 0:
-            B[iv, :] = np.diag(minv)
-        elif order == 1:
-            iF = slice(2 * n, 3 * n)
-            A[iv, iF] = np.diag(minv)
-            A[iF, iF] = -np.eye(n) / self.actuator.tau_s
-            B[iF, :] = np.eye(n) / self.actuator.tau_s
-        else:
-            iF = slice(2 * n, 3 * n)
-            iFd = slice(3 * n, 4 * n)
-            w = self.actuator.omega_n_radps
-            A[iv, iF] = np.diag(minv)
-            A[iF, iFd] = np.eye(n)
-            A[iFd, iF] = -(w**2) * np.eye(n)
-            A[iFd, iFd] = -2 * self.actuator.zeta * w * np.eye(n)
-            B[iFd, :] = (w**2) * np.eye(n)
+        A, B = linear_model(n, self.actuator, self.m_inertial, self.k, self.d)
         self.A, self.B = A, B
-        self.nz = nz
+        self.nz = A.shape[0]
+        iv = slice(n, 2 * n)
         self._integ = ETD2Integrator(A, B, self.h, nonlinear_rows=iv)
         self._zero_nl = np.zeros(n)
         self._offsets = np.arange(n) * self.spacing
         self._mg = self.m * (G / 1000.0)
-        self._ca0, self._cb0, self._cc0 = float(self.ca[0]), float(self.cb[0]), float(self.cc[0])
-        self._mg0, self._m0 = float(self._mg[0]), float(self.m[0])
-        self._minv0 = 1.0 / float(self.m_inertial[0])
+        self._nl = NonlinearTerm(
+            self.m,
+            self.m_inertial,
+            (self.ca, self.cb, self.cc),
+            self.lead_aero,
+            self._offsets,
+            self._mg,
+            self.disturbances,
+            self.davis_variation,
+        )
         self._nl_buf = np.zeros(1)
-        # Python-float copies of the per-car constants for the float code paths (the same
-        # numbers as the arrays above, combined by the same operations in the same order)
-        self._ca_l, self._cb_l, self._cc_l = self.ca.tolist(), self.cb.tolist(), self.cc.tolist()
-        self._m_l, self._mi_l = self.m.tolist(), self.m_inertial.tolist()
-        self._mg_l, self._off_l = self._mg.tolist(), self._offsets.tolist()
-        self._m_sum = float(self.m.sum())
         self._share0 = float(self.share[0])
         self._share_l = self.share.tolist()
         self._nl_arr = np.zeros(n)  # work array of the multi-car float path
-        self._zeros_l = [0.0] * n
-        # per car: (index of its speed in z, a_i, b_i, c_i, offset_i, m_i g/1000, m_i, m'_i)
-        self._car_consts = [
-            (n + i, *c)
-            for i, c in enumerate(
-                zip(
-                    self._ca_l,
-                    self._cb_l,
-                    self._cc_l,
-                    self._off_l,
-                    self._mg_l,
-                    self._m_l,
-                    self._mi_l,
-                    strict=True,
-                )
-            )
-        ]
         self._grad_src: object = None
-        self._kern = None  # the single-car step, compiled or not (made on first use)
-        self._grad_lists: tuple[list[float], list[float], list[float]] | None = None
+        self._grad_lists: Table | None = None
         # the lead car's acceleration read-out of a single car needs no matrix product:
         # its row of [A B] has one non-zero entry (m'^-1 on the force state, or on the
         # input for an ideal actuator), the other products being exact zeros
         self._lead_fast = n == 1 and self.davis_variation is None
         self._acc_coef = float(A[n, 2 * n]) if order else float(B[n, 0])
-        # constants of the single-car fast path (layout: plants._kernels.C_*), as an array
-        # for the compiled step and as floats for the interpreted one
+        # the single-car step (layout of its constants: plants.single_car.C_*)
         self._scalar_ok = n == 1 and self.davis_variation is None and self.actuator.order < 2
-        ig = self._integ
+        self._kern = implementation(SINGLE_CAR_STEP)
+        nl, ig = self._nl, self._integ
         self._kconst = np.concatenate(
             [
-                [self.h, self._ca0, self._cb0, self._cc0, self._mg0, self._m0, self._minv0],
+                [self.h, nl.a0, nl.b0, nl.c0, nl.mg0, nl.m0, nl.minv0],
                 [self.HOLD_SPEED_MPS],
                 ig.Phi.ravel(),
                 ig.Gamma[:, 0],
@@ -254,9 +184,8 @@ class TrainPlant:
                 ig.P2[:, 0],
             ]
         )
-        self._kconst_l = self._kconst.tolist()
 
-    def _grad_table(self) -> tuple[list[float], list[float], list[float]] | None:
+    def _grad_table(self) -> Table | None:
         """``(x, y0, slope)`` lists of the gradient look-up when it is a :class:`PiecewiseLinear`.
 
         The float paths evaluate that table in place (bisect on the lists, exactly what
@@ -272,123 +201,20 @@ class TrainPlant:
         """Nonlinear accelerations (rows of the speeds): −(Davis + gradient + w)/m'."""
         n = self.n
         if n == 1 and self.davis_variation is None:
-            return self._nonlinear_single(z, t)
+            out = self._nl_buf
+            out[0] = self._nl.single(float(z[0]), float(z[1]), t, self.gradient_permil)
+            return out.copy()
         tab = self._grad_table()
         if self.gradient_permil is None or tab is not None:
-            return np.array(self._nonlinear_floats(z.tolist(), t, n, tab))
-        v = z[n : 2 * n]
-        av = np.abs(v)
-        ca, cb, cc = self.ca, self.cb, self.cc
-        if self.davis_variation is not None:
-            d0, d1, d2 = self.davis_variation.deltas(t)
-            ca = ca + d0 * self.m
-            cb = cb + d1 * self.m
-            if self.lead_aero:
-                cc = cc.copy()
-                cc[0] += d2 * self.m.sum()
-            else:
-                cc = cc + d2 * self.m
-        force = np.sign(v) * (ca + cb * av + cc * av * av)
-        if self.gradient_permil is not None:
-            x = z[:n] - self._offsets
-            force = force + self._mg * self.gradient_permil(x)
-        if self.disturbances:
-            w = 0.0
-            for dist in self.disturbances:
-                w += dist.accel(t)
-            force = force + self.m * w
-        return -force / self.m_inertial
+            return np.array(self._nl_floats(z.tolist(), t, n))
+        return self._nl.array(z, t, self.gradient_permil)
 
-    def _nonlinear_floats(
-        self,
-        z: list[float],
-        t: float,
-        cars: int,
-        tab: tuple[list[float], list[float], list[float]] | None,
-        minus: list[float] | None = None,
+    def _nl_floats(
+        self, z: list[float], t: float, cars: int, minus: list[float] | None = None
     ) -> list[float]:
-        """:meth:`_nonlinear` on Python floats for the first ``cars`` cars.
-
-        Same operations in the same order as the array code, element by element (numpy's
-        element-wise arithmetic is IEEE-exact like Python's), so the results are identical;
-        the gradient must be ``None`` or a :class:`PiecewiseLinear` whose lists ``tab``
-        :meth:`_grad_table` gives. ``minus`` (n values) is subtracted from the results:
-        the ETD2 step's ``N(a) − N(z)`` in one pass (subtracting 0.0 changes nothing).
-        """
-        n = self.n
-        if minus is None:
-            minus = self._zeros_l
-        dv = self.davis_variation
-        if self.gradient_permil is None:
-            tab = None
-        wd = None
-        if self.disturbances:
-            wd = 0.0
-            for dist in self.disturbances:
-                wd += dist.accel(t)
-        out = []
-        if dv is None and tab is not None:  # the usual case, one tuple of constants per car
-            xl, y0l, sl = tab
-            consts = self._car_consts if cars == n else self._car_consts[:cars]
-            for (vi, ca, cb, cc, off, mg, m, mi), x, s0 in zip(consts, z, minus, strict=False):
-                v = z[vi]
-                av = v if v >= 0.0 else -v
-                f = ca + cb * av + cc * av * av
-                f = f if v > 0 else (-f if v < 0 else 0.0)  # np.sign(v) * f
-                x = x - off
-                j = bisect_right(xl, x) - 1
-                f = f + mg * (y0l[j] + sl[j] * (x - xl[j]))
-                if wd is not None:
-                    f = f + m * wd
-                out.append(-f / mi - s0)
-            return out
-        ca, cb, cc = self._ca_l, self._cb_l, self._cc_l
-        m, mg, mi, off = self._m_l, self._mg_l, self._mi_l, self._off_l
-        d0 = d1 = d2 = 0.0
-        if dv is not None:
-            d0, d1, d2 = dv.deltas(t)
-        if tab is not None:
-            xl, y0l, sl = tab
-        for i in range(cars):
-            v = z[n + i]
-            av = v if v >= 0.0 else -v
-            if dv is None:
-                f = ca[i] + cb[i] * av + cc[i] * av * av
-            else:
-                if self.lead_aero:
-                    c2 = cc[i] + d2 * self._m_sum if i == 0 else cc[i]
-                else:
-                    c2 = cc[i] + d2 * m[i]
-                f = (ca[i] + d0 * m[i]) + (cb[i] + d1 * m[i]) * av + c2 * av * av
-            f = f if v > 0 else (-f if v < 0 else 0.0)  # np.sign(v) * f
-            if tab is not None:
-                x = z[i] - off[i]
-                j = bisect_right(xl, x) - 1
-                f = f + mg[i] * (y0l[j] + sl[j] * (x - xl[j]))
-            if wd is not None:
-                f = f + m[i] * wd
-            out.append(-f / mi[i] - minus[i])
-        return out
-
-    def _nl_single(self, s: float, v: float, t: float) -> float:
-        """Nonlinear acceleration of the single-point train (floats): −(R + F_g + m w)/m'."""
-        av = abs(v)
-        f = self._ca0 + self._cb0 * av + self._cc0 * av * av
-        f = f if v > 0 else (-f if v < 0 else 0.0)
-        if self.gradient_permil is not None:
-            f += self._mg0 * float(self.gradient_permil(s))
-        if self.disturbances:
-            w = 0.0
-            for dist in self.disturbances:
-                w += dist.accel(t)
-            f += self._m0 * w
-        return -f * self._minv0
-
-    def _nonlinear_single(self, z: np.ndarray, t: float) -> np.ndarray:
-        """Scalar fast path of :meth:`_nonlinear` for the single-point train."""
-        out = self._nl_buf
-        out[0] = self._nl_single(float(z[0]), float(z[1]), t)
-        return out.copy()
+        """:meth:`NonlinearTerm.floats` with this plant's gradient table (or none)."""
+        tab = self._grad_table() if self.gradient_permil is not None else None
+        return self._nl.floats(z, t, cars, tab, minus)
 
     # ------------------------------------------------------------- interface
     def reset(
@@ -558,79 +384,47 @@ class TrainPlant:
             self._w_now = w
             self._substep(w)
 
+
     def _run_single(self, w_cmd: float, k: int, z: list[float] | None = None) -> None:
-        """Single-car fast path of :meth:`step`: :func:`._kernels.run_single`, the ETD2
-        step unrolled on scalars with the nonlinear term, the gradient table and the
-        dead-time buffer inlined, compiled (numba) where available and run as plain
-        Python otherwise.  The single-point train is the most simulated plant (every
-        tuning evaluation and RL rollout of the point-mass scenarios); at three states
-        numpy's per-call overhead dominates the general path.  ``tests/test_plants.py``
-        checks it against the general path and its compiled form against the Python one
-        bit for bit.  Needs the gradient as a table (or none): see :meth:`step`."""
-        kern = self._kern
-        if kern is None:
-            kern = self._kern = compiled(run_single, RUN_SINGLE_HELPERS) or run_single
+        """Single-car fast path of :meth:`step`: the registered single-car step
+        (:mod:`train_envs.plants.single_car`, compiled where available).  The
+        single-point train is the most simulated plant (every tuning evaluation and RL
+        rollout of the point-mass scenarios); at three states numpy's per-call overhead
+        dominates the general path.  Needs the gradient as a table (or none): see
+        :meth:`step`."""
         order = self.actuator.order
         if z is None:
             z = self.z.tolist()
         pl = self._p_last
-        st = [
-            z[0],
-            z[1],
-            z[2] if order else 0.0,
-            self.t,
-            pl if type(pl) is float else float(pl[0]),
-            1.0 if self.stopped else 0.0,
-            w_cmd,
-            0.0,
-            0.0,
-        ]
-        wd = []
+        st = np.array(
+            [
+                z[0],
+                z[1],
+                z[2] if order else 0.0,
+                self.t,
+                pl if type(pl) is float else float(pl[0]),
+                1.0 if self.stopped else 0.0,
+                w_cmd,
+                0.0,
+                0.0,
+            ]
+        )
         dists = self.disturbances
+        wd = _NO_DIST
         if dists:  # the sums the loop adds at t_0 + j h (the times it reaches by t += h)
             tj, h = self.t, self.h
+            sums = []
             for _ in range(k + 1):
-                acc = 0.0
-                for dist in dists:
-                    acc += dist.accel(tj)
-                wd.append(acc)
+                sums.append(self._nl.disturbance_sum(tj))
                 tj += h
+            wd = np.array(sums)
         g = self.gradient_permil
-        buf = self._buffer[:, 0]
-        if kern is run_single:  # interpreted: Python floats and lists run it fastest
-            tab = self._grad_table() if g is not None else ([], [], [])
-            bl = buf.tolist()
-            self._head = run_single(
-                st,
-                bl,
-                self._head,
-                k,
-                order,
-                self._kconst_l,
-                *tab,
-                g is not None,
-                wd,
-                bool(dists),
-            )
-            buf[:] = bl
-        else:
-            st = np.array(st)
-            tab = (g.x, g.y0, g.slope) if g is not None else (_NO_DIST,) * 3
-            wdv = np.array(wd) if dists else _NO_DIST
-            self._head = kern(
-                st,
-                buf,
-                self._head,
-                k,
-                order,
-                self._kconst,
-                *tab,
-                g is not None,
-                wdv,
-                bool(dists),
-            )
-            st = st.tolist()
-        z0, z1, z2, t, p_last, stopped, w, wt, wb = st
+        tab = (g.x, g.y0, g.slope) if g is not None else (_NO_DIST,) * 3
+        self._head = self._kern(
+            st, self._buffer[:, 0], self._head, k, order, self._kconst, *tab,
+            g is not None, wd, bool(dists),
+        )
+        z0, z1, z2, t, p_last, stopped, w, wt, wb = st.tolist()
         self.z = np.array([z0, z1, z2] if order else [z0, z1])
         self.t = t
         self.stopped = stopped != 0.0
@@ -669,18 +463,17 @@ class TrainPlant:
             ig = self._integ
             t = self.t
             buf = self._nl_arr
-            n0 = self._nonlinear_floats(zl, t, n, tab)
+            n0 = self._nl.floats(zl, t, n, tab)
             buf[:] = n0
             z_new = ig.Phi.dot(z)
             z_new += ig.Gamma.dot(w) if gw is None else gw
             z_new += ig.P1.dot(buf)  # z_new holds a here
-            buf[:] = self._nonlinear_floats(z_new.tolist(), t + h, n, tab, n0)  # n1 − n0
+            buf[:] = self._nl.floats(z_new.tolist(), t + h, n, tab, n0)  # n1 − n0
             z_new += ig.P2.dot(buf)
         znl = z_new.tolist()
         v_old = zl[n]
         v_new = znl[n]
         # trapezoidal integration of the traction (F v > 0) and braking (F v < 0) powers
-        # (the sums of the n per-car terms in numpy's order of summation, see _np_sum)
         if self.actuator.order == 0:
             if wl is None:
                 w_now = self._w_now
@@ -691,28 +484,7 @@ class TrainPlant:
         p0 = self._p_last
         if type(p0) is not list:
             p0 = [p0] if type(p0) is float else p0.tolist()
-        p1 = []
-        if n < 8:
-            s_up = s_down = 0.0  # (the terms are >= +0, so 0.0 + x0 is x0)
-            for a_, f, v in zip(p0, F, znl[n : 2 * n], strict=True):
-                b_ = f * v
-                p1.append(b_)
-                tot = a_ + b_
-                mag = abs(a_) + abs(b_)
-                s_up += mag + tot
-                s_down += mag - tot
-        else:
-            up = []
-            down = []
-            for a_, f, v in zip(p0, F, znl[n : 2 * n], strict=True):
-                b_ = f * v
-                p1.append(b_)
-                tot = a_ + b_
-                mag = abs(a_) + abs(b_)
-                up.append(mag + tot)
-                down.append(mag - tot)
-            s_up = _np_sum(up)
-            s_down = _np_sum(down)
+        p1, s_up, s_down = power_sums(p0, F, znl[n : 2 * n])
         self.work_traction_J += 0.25 * h * s_up
         self.work_brake_J += 0.25 * h * s_down
         self._p_last = p1
@@ -791,7 +563,7 @@ class TrainPlant:
             dz = dz + self._acc_coef * float(self._forces_input()[0])
         tab = self._grad_table()
         if self.gradient_permil is None or tab is not None:
-            nl0 = self._nonlinear_floats(z.tolist(), self.t, 1, tab)[0]  # the lead car only
+            nl0 = self._nl_floats(z.tolist(), self.t, 1)[0]  # the lead car only
         else:
             nl0 = float(self._nonlinear(z, self.t)[0])
         return dz + nl0
@@ -814,7 +586,7 @@ class TrainPlant:
         else:
             w = self._w_now
             F = w if type(w) is float else float(w[0])
-        return self._acc_coef * F + self._nl_single(z[0], z[1], self.t)
+        return self._acc_coef * F + self._nl.single(z[0], z[1], self.t, self.gradient_permil)
 
     def _lead_state(self) -> tuple[float, float, float, float]:
         """``(t, s, v, accel)`` of the lead car: the scalar read-outs of one observation."""
@@ -860,35 +632,3 @@ class TrainPlant:
             if abs(q) > a_q:
                 q_max, a_q = q, abs(q)
         return f_max, q_max
-
-
-def _np_sum(x: list[float]) -> float:
-    """``float(np.sum(x))`` of a short list, in numpy's order of summation.
-
-    numpy adds up to 7 numbers left to right and longer runs (up to its 128-element
-    block) in 8 interleaved partial sums, combined pairwise; restating that keeps the
-    float paths' energy integrals identical to the array code's.
-    """
-    n = len(x)
-    if n < 8:
-        r = x[0]
-        for y in x[1:]:
-            r += y
-        return r
-    if n > 128:
-        return float(np.sum(x))
-    r0, r1, r2, r3, r4, r5, r6, r7 = x[:8]
-    m = n - n % 8
-    for i in range(8, m, 8):
-        r0 += x[i]
-        r1 += x[i + 1]
-        r2 += x[i + 2]
-        r3 += x[i + 3]
-        r4 += x[i + 4]
-        r5 += x[i + 5]
-        r6 += x[i + 6]
-        r7 += x[i + 7]
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    for y in x[m:]:
-        res += y
-    return res

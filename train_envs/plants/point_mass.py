@@ -17,7 +17,8 @@ realises the dead time with a buffer of ``T_d / dt_sim_s`` sub-steps.
 
 from __future__ import annotations
 
-from train_envs.plants.multi_car import ActuatorParams, TrainPlant
+from train_envs.plants.actuator import ActuatorParams
+from train_envs.plants.multi_car import TrainPlant
 from train_envs.trains import TrainParams
 
 

@@ -132,7 +132,7 @@ class DavisVariation:
     def deltas(self, t: float) -> tuple[float, float, float]:
         """Deviation (δc0, δc1, δc2) per unit mass at time ``t``."""
         if self.mode == "sinusoid":
-            # sin(2π t / T + φ_j) δ_j: numpy's sine (as ever), the products on floats
+            # sin(2π t / T + φ_j) δ_j: numpy's sine, the products on floats
             s0, s1, s2 = np.sin(2 * math.pi * t / self.period_s + self._phase).tolist()
             return s0 * self.delta_c0, s1 * self.delta_c1, s2 * self.delta_c2
         i = min(int(t), self._walk.shape[0] - 1)

@@ -1,20 +1,25 @@
-"""The single-car plant step as one scalar loop, compiled by numba (:mod:`train_envs._jit`).
+"""The ETD2 step of the single-point train as one scalar loop, and its compiled twin.
 
-:func:`run_single` is the ETD2 step of a single point train unrolled on scalars, with
-the nonlinear term, the gradient table and the dead-time buffer inlined.
-:meth:`TrainPlant._run_single` runs it compiled where numba is available and as plain
-Python otherwise (the same IEEE operations in the same order, so the same numbers:
-``tests/test_plants.py`` compares them bit for bit, and both with the general numpy
-path).  Disturbances stay Python objects: the caller sums their accelerations at the
-sub-step times ``t_0 + j h`` (``j = 0..k``, the times at which the loop evaluates the
-nonlinear term) and passes the sums.
+:func:`run_single` is the step of :class:`~train_envs.plants.multi_car.TrainPlant` for
+one car (actuator order 0 or 1) unrolled on scalars, with the nonlinear term
+(:func:`train_envs.plants.physics.davis_signed_N`, :func:`~train_envs.plants.physics.gradient_at`),
+the dead-time buffer, the standstill logic and the energy integrals inlined: the same
+IEEE operations in the same order as the general path.  It is registered in
+:data:`train_envs._jit.TWINS` as :data:`SINGLE_CAR_STEP`: the reference
+:func:`single_car_step` runs it on Python floats and lists, the compiled twin is
+:func:`run_single` itself compiled by numba on the arrays; both take the same arrays.
+Disturbances stay Python objects: the caller sums their accelerations at the sub-step
+times ``t_0 + j h`` (``j = 0..k``, the times at which the loop evaluates the nonlinear
+term) and passes the sums.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from train_envs import _jit
 from train_envs._jit import bisect_right
+from train_envs.plants.physics import davis_signed_N, gradient_at
 
 #: layout of the float state vector ``st`` (in and out)
 ST_Z0, ST_Z1, ST_Z2, ST_T, ST_PLAST, ST_STOPPED, ST_W, ST_WT, ST_WB = range(9)
@@ -34,14 +39,11 @@ def _nonlinear(
     wd: float,
     has_dist: bool,
 ) -> float:
-    """N(z, t) = −(Davis + gradient + disturbances)/M' per unit mass (the plant's
-    ``_nl_single``, the same operations)."""
-    av = vel if vel >= 0.0 else -vel
-    f = c[C_CA] + c[C_CB] * av + c[C_CC] * av * av
-    f = f if vel > 0 else (-f if vel < 0 else 0.0)
+    """N(z, t) = −(Davis + gradient + disturbances)/M' per unit mass (the operations of
+    :meth:`train_envs.plants.nonlinear.NonlinearTerm.single`)."""
+    f = davis_signed_N(c[C_CA], c[C_CB], c[C_CC], vel)
     if has_tab:
-        i = bisect_right(xl, pos) - 1
-        f += c[C_MG] * (y0l[i] + sl[i] * (pos - xl[i]))
+        f += c[C_MG] * gradient_at(xl, y0l, sl, pos)
     if has_dist:
         f += c[C_M0] * wd
     return -f * c[C_MINV]
@@ -103,8 +105,7 @@ def run_single(
             F = w if order == 0 else z2
             g_f = 0.0
             if has_tab:
-                i = bisect_right(xl, z0) - 1
-                g_f = mg * (y0l[i] + sl[i] * (z0 - xl[i]))
+                g_f = mg * gradient_at(xl, y0l, sl, z0)
             if F > g_f + ca:
                 stopped = False
             else:
@@ -160,5 +161,57 @@ def run_single(
     return head
 
 
-#: what :func:`run_single` calls, for :func:`train_envs._jit.compiled`
-RUN_SINGLE_HELPERS = {"bisect_right": bisect_right, "_nonlinear": _nonlinear}
+#: the name of the single-car step in :data:`train_envs._jit.TWINS`
+SINGLE_CAR_STEP = "plants.single_car_step"
+
+_LISTS: dict[int, tuple[tuple[np.ndarray, ...], tuple[list[float], ...]]] = {}
+
+
+def _as_lists(c: np.ndarray, xl: np.ndarray, y0l: np.ndarray, sl: np.ndarray):
+    """``(c, xl, y0l, sl)`` as lists, kept per plant: the constants and the gradient
+    table do not change between the calls of one plant."""
+    hit = _LISTS.get(id(c))
+    if hit is None or hit[0][0] is not c or hit[0][1] is not xl:
+        if len(_LISTS) > 256:
+            _LISTS.clear()
+        hit = _LISTS[id(c)] = ((c, xl), (c.tolist(), xl.tolist(), y0l.tolist(), sl.tolist()))
+    return hit[1]
+
+
+def single_car_step(
+    st: np.ndarray,
+    bl: np.ndarray,
+    head: int,
+    k: int,
+    order: int,
+    c: np.ndarray,
+    xl: np.ndarray,
+    y0l: np.ndarray,
+    sl: np.ndarray,
+    has_tab: bool,
+    wd: np.ndarray,
+    has_dist: bool,
+) -> int:
+    """:func:`run_single` on Python floats and lists (the reference of the twin): the same
+    arguments, ``st`` and ``bl`` updated in place.  ``c`` and the table ``xl, y0l, sl``
+    must not change between calls with the same ``c`` (their lists are kept)."""
+    stl = st.tolist()
+    bll = bl.tolist()
+    cl, xll, y0ll, sll = _as_lists(c, xl, y0l, sl)
+    head = run_single(stl, bll, head, k, order, cl, xll, y0ll, sll, has_tab, wd.tolist(), has_dist)
+    st[:] = stl
+    bl[:] = bll
+    return head
+
+
+_jit.register(
+    SINGLE_CAR_STEP,
+    single_car_step,
+    source=run_single,
+    helpers={
+        "bisect_right": bisect_right,
+        "gradient_at": gradient_at,
+        "davis_signed_N": davis_signed_N,
+        "_nonlinear": _nonlinear,
+    },
+)
