@@ -1,11 +1,11 @@
-"""Train MPCs on the shared core: SEMPC/MPC of paper 000 and the single-point MPC."""
+"""Train MPCs on the shared engine: SEMPC/MPC of paper 000 and the single-point MPC."""
 
 import numpy as np
 import pytest
 
 from train_envs.controllers import make_controller
 from train_envs.controllers.base import Observation
-from train_envs.controllers.train_mpc import augmented_terminal_cost, zoh
+from train_envs.mpc import augmented_terminal_cost, zoh
 from train_envs.scenarios import get_scenario
 from train_envs.simulation import ClosedLoop, simulate
 

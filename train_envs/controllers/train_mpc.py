@@ -10,12 +10,9 @@ Davis resistance is linearised about the reference speed (000 eq. 4,
 v² ≈ 2 v_r v − v_r²): ``R(v) ≈ R(v_r) + R'(v_lin) (v − v_r)``. The affine part
 ``R(v_r,i) − R'(v_lin) v_r,i`` and the gradient force at the reference position are
 recomputed **every step for every stage** of the horizon (the affine sequence ``D`` of
-the core); the slope R'(v_lin) sits in the model matrix and is re-linearised (a matrix
+the engine); the slope R'(v_lin) sits in the model matrix and is re-linearised (a matrix
 value update in OSQP) only when the reference speed has moved more than
-``relinearise_mps`` (5 m/s) from v_lin — the slope changes slowly (2c Δv/M' ≈ 2e-4
-1/s per m/s for paper 004's metro, a 0.06 % speed change over a 3 s horizon), the
-rebuild costs ~10 ms, and the error of a stale slope multiplies the (small) tracking
-error only.
+``relinearise_mps`` (5 m/s) from v_lin (why that suffices: ``docs/design/mpc_engine.md``).
 
 Terminal cost (SEMPC, 000 §III-B; 001 eq. 11, 20): P is the solution of the discrete
 Riccati equation of the augmented model with the stage weights (scipy

@@ -1,4 +1,20 @@
-r"""Assembly of the QP matrices of :class:`~train_envs.mpc.LinearMPC`.
+r"""Assembly of the QP of :class:`~train_envs.mpc.LinearMPC`: ``P``, ``A`` and the data map.
+
+Condensed prediction (Maciejowski 2002, sec. 3.1): :math:`\Phi = [A; A^2; \dots;
+A^{N_p}]`, :math:`\Gamma_{it} = A^{i-t} B`, :math:`\Gamma_{d,it} = A^{i-t}` (:math:`t \le
+i`); inputs :math:`U = T_z z + T_u u_{-1}`, :math:`\Delta U = D_z z + D_u u_{-1}`.  All
+weighted residuals :math:`e = E_z z + E_\theta \theta` with block weight :math:`W` give
+the condensed Hessian :math:`H = E_z^\top W E_z` (OSQP's :math:`P_{zz} = 2H`) and
+:math:`q_z = 2 E_z^\top W E_\theta \theta`; the constant :math:`\lVert L_w E_\theta
+\theta\rVert^2` (:math:`L_w^\top L_w = W`) makes ``MPCSolution.cost`` the full cost.
+The sparse form keeps the states as variables and the dynamics
+:math:`-x_{t+1} + A x_t + B u_t + d_t = 0` as equality rows.
+
+Every block a weight or model change can touch is stored dense (zeros included) in a
+sparsity pattern fixed at construction, so :meth:`_AssemblyMixin.set_weights` and
+:meth:`_AssemblyMixin.set_model` update OSQP's matrix values (``Px``, ``Ax``) without
+a new setup; the weight-independent part (prediction matrices, constraint rows on
+``z``) is made once per model (:meth:`_AssemblyMixin._structure`).
 """
 
 from __future__ import annotations
@@ -74,7 +90,7 @@ class _AssemblyMixin:
                 Gam[i * n : (i + 1) * n, t * m : (t + 1) * m] = powers[i - t] @ B
                 GamD[i * n : (i + 1) * n, t * n : (t + 1) * n] = powers[i - t]
         hold = np.minimum(np.arange(Np), Nc - 1)  # stage t uses block hold[t]
-        if self._zdu:
+        if self._z_is_du:
             blocks = (np.arange(Nc)[None, :] <= hold[:, None]).astype(float)
             Tu = np.kron(np.ones((Np, 1)), np.eye(m))
             Du = np.zeros((nz, m))
@@ -136,7 +152,7 @@ class _AssemblyMixin:
         constraint rows onto ``z``) are built for both forms: they give
         :meth:`gain_unconstrained`, the exact refinement and the fallback prediction.
         """
-        self._unc = None  # the unconstrained shortcut's data follow the matrices
+        self._unc_cache = None  # the unconstrained shortcut's data follow the matrices
         self._pin_key: bytes | None | bool = False  # pinned inputs: not looked at yet
         n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
         A, B, C = self._A, self._B, self._C
@@ -190,7 +206,7 @@ class _AssemblyMixin:
         rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
         self._rho_s = rho_s
         self._gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
-        ns, nh, nlu, r0 = self._ns, self._nh, self._nlu, self._r0
+        ns, nh, nlu, r0 = self._ns, self._row_soft, self._n_bound_row, self._row_input
         n_u = nz
         n_du = nz if self._has_du else 0
         o = r0 + n_u + n_du
@@ -204,9 +220,9 @@ class _AssemblyMixin:
         )
 
         # OSQP matrices ------------------------------------------------------------------
-        oz, oe, nv = self._oz, self._oe, self._nv
+        oz, oe, nv = self._col_input, self._col_slack, self._n_var
         sl = np.arange(ns)
-        Ad = np.zeros((self._nA, nv))
+        Ad = np.zeros((self._n_row, nv))
         Pd = np.zeros((nv, nv))
         if not sparse:
             Ad[:nlu, :nz] = self._Gsem
@@ -272,7 +288,7 @@ class _AssemblyMixin:
         self._A_dense, self._P_dense = Ad, Pd
 
         # the per-step affine map v = M theta ---------------------------------------------
-        # v = [q (nv) | offsets of the rows self._off | trajectory offsets | cost factor]
+        # v = [q (nv) | offsets of the rows self._offset_rows | trajectory offsets | cost factor]
         qth = np.zeros((nv, nt))
         qth[:oe] = Hw_q
         qth[oe:, 0] = rho_s  # column 0 of theta is the constant 1
@@ -289,15 +305,15 @@ class _AssemblyMixin:
         Lth = Lth[np.any(Lth != 0, axis=1)]
         M = np.vstack([qth, Cth] + traj_th + [Lth])
         self._M_full = np.ascontiguousarray(M)
-        self._M_nd = np.ascontiguousarray(M[:, : self._nb])
+        self._M_no_D = np.ascontiguousarray(M[:, : self._n_theta_no_D])
         self._v = np.empty(M.shape[0])
-        self._sl_q = slice(0, nv)
-        n_off = self._off.stop - self._off.start
-        self._sl_c = slice(nv, nv + n_off)
+        self._v_q = slice(0, nv)
+        n_off = self._offset_rows.stop - self._offset_rows.start
+        self._v_offsets = slice(nv, nv + n_off)
         t0 = nv + n_off
-        n_tu = 0 if sparse else self._ncm
-        self._sl_traj_u = slice(t0, t0 + n_tu)
-        self._sl_L = slice(t0 + n_tu, M.shape[0])
+        n_tu = 0 if sparse else self._n_plan
+        self._v_plan = slice(t0, t0 + n_tu)
+        self._v_cost = slice(t0 + n_tu, M.shape[0])
         self._Wz_u = None if sparse else np.ascontiguousarray(self._Tz_c)
         self._Cpinv = S_.Cpinv
         # condensed data for gain_unconstrained(), the refinement and the fallback
@@ -307,8 +323,8 @@ class _AssemblyMixin:
         self._Xth, self._Sx = Xth, Sx
 
     def _q_init(self) -> np.ndarray:
-        q = np.zeros(self._nv)
-        q[self._oe :] = self._rho_s
+        q = np.zeros(self._n_var)
+        q[self._col_slack :] = self._rho_s
         return q
 
     def _push_matrices(self) -> None:

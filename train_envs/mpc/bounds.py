@@ -1,4 +1,16 @@
-r"""Constraint bounds of :class:`~train_envs.mpc.LinearMPC`.
+r"""Bounds of :class:`~train_envs.mpc.LinearMPC`: base bounds, per-call bounds, safe move.
+
+Three levels: the construction-time bounds; base bounds
+(:meth:`_BoundsMixin.set_base_bounds`, kept until changed: per-stage input box, output
+box, terminal polyhedron offsets); per-call bounds of
+:meth:`~train_envs.mpc.LinearMPC.solve` (one call only).  Values beyond
+:math:`\pm 10^{30}` are OSQP's infinity.  When the previous input lies outside the box
+while rates are limited, stage :math:`k`'s input bounds become the reachable box
+:math:`[\min(u_{\min}, u_{-1} + k\,\Delta u_{\max}),\ \max(u_{\max}, u_{-1} +
+k\,\Delta u_{\min})]`, so the QP stays feasible.  The applied first move is clipped
+to the box intersected with one step's rate window (:meth:`_BoundsMixin._input_window`;
+the rate limit wins when the box is out of reach), which removes the solver's
+:math:`O(\epsilon)` violations.
 """
 
 from __future__ import annotations
@@ -53,8 +65,8 @@ class _BoundsMixin:
         :meth:`solve` replaces the stage input bounds for that call.
         """
         Nc, m = self.Nc, self.m
-        lo0, hi0 = self._Lb0, self._Ub0
-        r0, nu = self._r0, self._nz
+        lo0, hi0 = self._lower_base, self._upper_base
+        r0, nu = self._row_input, self._nz
         groups = self.__dict__.get("_base_groups")
         if groups is None:
             groups = self._base_groups = {g.name: g for g in self._groups}
@@ -135,7 +147,9 @@ class _BoundsMixin:
                 lb_all = bool(lb_ok.all())
                 lb = (g.lb_pos if lb_all else g.lb_pos[lb_ok], None if lb_all else lb_ok)
                 # rows of a hard group bound OSQP rows that need l <= u
-                hard = bool(np.any(g.ub_pos < self._nh)) or bool(np.any(g.lb_pos[lb_ok] < self._nh))
+                hard = bool(np.any(g.ub_pos < self._row_soft)) or bool(
+                    np.any(g.lb_pos[lb_ok] < self._row_soft)
+                )
                 hit = (g, dropped, cols, lb, g.ub_pos, hard)
             cache[name] = hit
         return hit
@@ -150,8 +164,8 @@ class _BoundsMixin:
         h_x: ArrayLike | None,
     ) -> bool:
         """Write per-call bounds into the working bound vectors; False if they contain NaN."""
-        Lb, Ub = self._Lb, self._Ub
-        self._LUb[...] = self._LUb0
+        Lb, Ub = self._lower_call, self._upper_call
+        self._bounds_call[...] = self._bounds_base
         self._bounds_dirty = True
         check = relax
         if relax:
@@ -160,7 +174,7 @@ class _BoundsMixin:
             with np.errstate(invalid="ignore"):
                 lo = np.minimum(self._umin_t, up[None, :] + self._k_dumax)
                 hi = np.maximum(self._umax_t, up[None, :] + self._k_dumin)
-            r0 = self._r0
+            r0 = self._row_input
             Lb[r0 : r0 + nu] = np.clip(np.nan_to_num(lo, nan=-_BIG), -_BIG, _BIG).ravel()
             Ub[r0 : r0 + nu] = np.clip(np.nan_to_num(hi, nan=_BIG), -_BIG, _BIG).ravel()
         for name, val, side in (
@@ -224,7 +238,7 @@ class _BoundsMixin:
         if not check:
             return True
         # hard rows must have l <= u for OSQP
-        nh = self._nh
+        nh = self._row_soft
         return bool((Lb[:nh] <= Ub[:nh]).all())
 
     def _outside_box(self, upl: list[float]) -> bool:

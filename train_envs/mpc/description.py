@@ -134,7 +134,7 @@ class _DescriptionMixin:
 
     @staticmethod
     def _auto_form(Np: int, Nc: int, n: int, m: int) -> str:
-        """QP form chosen by ``form="auto"`` (measured crossover, see the module docstring).
+        """QP form chosen by ``form="auto"`` (measured crossover, ``docs/design/mpc_engine.md``).
 
         Condensed for few decision variables (``Nc*m <= 20``), sparse otherwise.  The
         state dimension does not enter: the condensed QP does not grow with ``n``

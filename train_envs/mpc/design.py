@@ -1,4 +1,13 @@
-r"""Design helpers shared by the controllers.
+r"""Design helpers shared by the controllers: terminal costs and discretisation.
+
+* :func:`terminal_cost_dare` -- LQR terminal weight from the discrete algebraic Riccati
+  equation :math:`P = A^\top P A - A^\top P B (R + B^\top P B)^{-1} B^\top P A + Q_x`;
+* :func:`terminal_cost_lyapunov` -- cost-to-go of a fixed stable loop,
+  :math:`A_{cl}^\top P A_{cl} - P + Q_x = 0`;
+* :func:`augmented_terminal_cost` -- the Riccati terminal cost of the
+  :math:`\Delta u`-augmented model :math:`\xi = [x; u_{k-1}]` (papers 000 sec. III-B,
+  001 eq. 11, 20), with :func:`dare_doubling` where scipy's Schur method fails;
+* :func:`zoh` -- exact zero-order-hold discretisation (one matrix exponential).
 """
 
 from __future__ import annotations

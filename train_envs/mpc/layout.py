@@ -1,6 +1,38 @@
-r"""Variable and row layout of the QP of :class:`~train_envs.mpc.LinearMPC`.
+r"""Variable, row and data layout of the QP of :class:`~train_envs.mpc.LinearMPC`.
 
-Fixed at construction (see :meth:`_LayoutMixin._layout` for the attribute names).
+Fixed at construction by :meth:`_LayoutMixin._layout`; the per-step code reads these
+attributes (plain instance attributes: no lookups beyond one ``self.`` each).
+
+Variables ``w`` (OSQP's ``x``), ``_n_var`` in all::
+
+    [ X: states x_1..x_Np (sparse form only, _nxv) | z (_nz) | eps: slacks (_ns) ]
+      0                                     _col_input    _col_slack       _n_var
+
+``z`` holds the increments (condensed Δu form, ``_z_is_du``) or the absolute inputs.
+
+Rows (``_n_row`` in all)::
+
+    [ dynamics (sparse, _nxv) | input box (_nz) | rate box (_nz, with rate limits)
+      | hard output/state rows | soft upper (_ns) | soft lower (two-sided soft rows)
+      | eps >= 0 (_ns) ]
+
+``_row_input``: first input-box row; ``_row_soft``: first soft-upper row (the hard
+rows end there); ``_n_bound_row``: the rows before ``eps >= 0``, whose bounds may
+change per call; ``_offset_rows``: the rows whose offsets depend on the data.
+
+Bounds: ``_bounds_base`` (2, ``_n_bound_row``) = construction-time / base bounds
+(rows ``_lower_base``, ``_upper_base``); ``_bounds_call`` the bounds of this call
+(``_lower_call``, ``_upper_call``, per-call overrides written here); OSQP's ``l, u``
+(``_lu``, rows ``_l``, ``_u``) = call bounds minus the data offsets; ``*_off`` are
+views of the ``_offset_rows`` part.
+
+Data vector ``θ = [1, x0, u_prev, r, (x_ref_N), d, (u_ref), D]`` (``_theta``, named
+index slices ``_slots``, views ``_theta_x0``, ``_theta_up``, ``_theta_r``,
+``_theta_D``, ``_theta_xN``; ``_theta_no_D`` the part before ``D``).  One product
+``v = M θ`` per step (``_M_full``, or ``_M_no_D`` when no ``D`` sequence is loaded)
+gives every vector of the call; ``v``'s slices: ``_v_q`` (OSQP's ``q``),
+``_v_offsets`` (offsets of ``_offset_rows``), ``_v_plan`` (condensed: offsets of the
+input plan), ``_v_cost`` (factor ``L`` of the cost constant ``‖L θ‖²``).
 """
 
 from __future__ import annotations
@@ -26,7 +58,8 @@ class _LayoutMixin:
     warm-start shift maps (:meth:`_layout`)."""
 
     def _layout(self) -> None:
-        """Fix the variable/row layout, sparsity patterns and parameter slots."""
+        """Fix the variable/row layout, sparsity patterns and parameter slots (the
+        attributes of the module docstring) and the warm-start shift maps."""
         n, m, Np, Nc = self.n, self.m, self.Np, self.Nc
         nz = Nc * m
         self._nz = nz
@@ -52,7 +85,7 @@ class _LayoutMixin:
                 pos += size
         self._slots = slots
         self._ntheta = pos
-        self._nb = slots["D"].start  # parameters without the D sequence
+        self._n_theta_no_D = slots["D"].start  # parameters without the D sequence
 
         # output/state constraint rows: (group, stage, row-in-group) ----------------
         con_g, con_s, con_r, con_lo, con_hi, con_rho, con_two = [], [], [], [], [], [], []
@@ -82,9 +115,9 @@ class _LayoutMixin:
         self._soft2_slack = np.searchsorted(soft_c, soft2_c)
         ns = soft_c.size
         self._ns = ns
-        self._oz = nxv  # first input variable
-        self._oe = nxv + nz  # first slack variable
-        self._nv = nxv + nz + ns
+        self._col_input = nxv  # first input variable
+        self._col_slack = nxv + nz  # first slack variable
+        self._n_var = nxv + nz + ns
 
         # row layout: [dynamics (sparse) | hard | soft upper | soft lower | eps >= 0] ----
         r0 = nxv
@@ -92,15 +125,15 @@ class _LayoutMixin:
         n_du = nz if self._has_du else 0
         o = r0 + n_u + n_du  # first hard output/state row
         nh = o + hard_c.size
-        self._r0, self._nh = r0, nh
-        self._nlu = nh + ns + soft2_c.size  # rows whose bounds may change per step
-        self._nA = self._nlu + ns
+        self._row_input, self._row_soft = r0, nh
+        self._n_bound_row = nh + ns + soft2_c.size  # rows whose bounds may change per step
+        self._n_row = self._n_bound_row + ns
         # rows whose offsets depend on theta (condensed: all; sparse: dynamics, input and
         # rate rows -- the state/output rows act on the variables and have fixed bounds)
-        self._off = slice(0, self._nlu if not sparse else o)
+        self._offset_rows = slice(0, self._n_bound_row if not sparse else o)
 
-        Lb = np.zeros(self._nlu)
-        Ub = np.zeros(self._nlu)
+        Lb = np.zeros(self._n_bound_row)
+        Ub = np.zeros(self._n_bound_row)
         Lb[r0 : r0 + n_u] = np.tile(self._umin, Nc)
         Ub[r0 : r0 + n_u] = np.tile(self._umax, Nc)
         if n_du:
@@ -113,19 +146,19 @@ class _LayoutMixin:
         Lb[nh + ns :] = clo[soft2_c]
         Ub[nh + ns :] = np.inf
         # lower/upper bounds are rows of 2-D arrays so one ufunc call updates both
-        self._LUb0 = np.clip(np.vstack([Lb, Ub]), -_BIG, _BIG)
-        self._LUb = self._LUb0.copy()
-        self._Lb0, self._Ub0 = self._LUb0[0], self._LUb0[1]
-        self._Lb, self._Ub = self._LUb[0], self._LUb[1]
+        self._bounds_base = np.clip(np.vstack([Lb, Ub]), -_BIG, _BIG)
+        self._bounds_call = self._bounds_base.copy()
+        self._lower_base, self._upper_base = self._bounds_base[0], self._bounds_base[1]
+        self._lower_call, self._upper_call = self._bounds_call[0], self._bounds_call[1]
         self._bounds_dirty = False
-        self._LU = np.empty((2, self._nA))
-        self._l, self._u = self._LU[0], self._LU[1]
-        self._LU[:, : self._nlu] = self._LUb0
-        self._l[self._nlu :] = 0.0
-        self._u[self._nlu :] = _BIG
+        self._lu = np.empty((2, self._n_row))
+        self._l, self._u = self._lu[0], self._lu[1]
+        self._lu[:, : self._n_bound_row] = self._bounds_base
+        self._l[self._n_bound_row :] = 0.0
+        self._u[self._n_bound_row :] = _BIG
         kk = np.arange(1, Nc + 1, dtype=float)[:, None]
-        off = self._off  # views used by solve()
-        self._Lb_off, self._Ub_off = self._Lb[off], self._Ub[off]
+        off = self._offset_rows  # views used by solve()
+        self._lower_call_off, self._upper_call_off = self._lower_call[off], self._upper_call[off]
         self._l_off, self._u_off = self._l[off], self._u[off]
         self._k_dumax = kk * self._dumax[None, :]  # (Nc, m): reach of k rate-limited steps
         self._k_dumin = kk * self._dumin[None, :]
@@ -149,7 +182,7 @@ class _LayoutMixin:
 
         # input parametrisation (decision z: increments in the condensed Delta-u form,
         # absolute inputs otherwise; the sparse form always uses absolute inputs)
-        if self._zdu:
+        if self._z_is_du:
             Tz_c = np.kron(np.tril(np.ones((Nc, Nc))), np.eye(m))
             Dz = np.eye(nz)
         else:
@@ -158,13 +191,13 @@ class _LayoutMixin:
         self._Tz_c, self._Dz = Tz_c, Dz
 
         # sparsity patterns: every entry a model/weight change could touch --------------
-        oz, oe = self._oz, self._oe
-        Amask = np.zeros((self._nA, self._nv), dtype=bool)
+        oz, oe = self._col_input, self._col_slack
+        Amask = np.zeros((self._n_row, self._n_var), dtype=bool)
         Amask[r0 : r0 + n_u, oz : oz + nz] = Tz_c != 0
         if n_du:
             Amask[r0 + n_u : o, oz : oz + nz] = Dz != 0
         con_rows = np.concatenate([hard_c, soft_c, soft2_c])
-        con_at = np.concatenate([np.arange(o, nh), np.arange(nh, self._nlu)])
+        con_at = np.concatenate([np.arange(o, nh), np.arange(nh, self._n_bound_row)])
         if sparse:
             hold = np.minimum(np.arange(Np), Nc - 1)
             for t in range(Np):  # -x_{t+1} + A x_t + B u_t + offset = 0
@@ -184,8 +217,8 @@ class _LayoutMixin:
         Amask[nh + sl, oe + sl] = True
         if soft2_c.size:
             Amask[nh + ns + np.arange(soft2_c.size), oe + self._soft2_slack] = True
-        Amask[self._nlu + sl, oe + sl] = True
-        Pmask = np.zeros((self._nv, self._nv), dtype=bool)
+        Amask[self._n_bound_row + sl, oe + sl] = True
+        Pmask = np.zeros((self._n_var, self._n_var), dtype=bool)
         Pmask[oz : oz + nz, oz : oz + nz] = np.triu(np.ones((nz, nz), dtype=bool))
         if sparse:
             blk_n = np.triu(np.ones((n, n), dtype=bool))
@@ -211,14 +244,14 @@ class _LayoutMixin:
         stage_next = np.minimum(np.arange(Np) + 1, Np - 1)
         xsrc = (stage_next[:, None] * n + np.arange(n)[None, :]).ravel() if sparse else []
         zsrc = np.arange(nz) + m
-        zsrc[-m:] = self._nv if self._zdu else np.arange(nz - m, nz)  # nv -> appended 0
+        zsrc[-m:] = self._n_var if self._z_is_du else np.arange(nz - m, nz)  # nv -> appended 0
         zsrc[: nz - m] += oz
-        if not self._zdu:
+        if not self._z_is_du:
             zsrc[-m:] += oz
         self._xshift = np.concatenate([np.asarray(xsrc, dtype=np.int64), zsrc, oe + esrc]).astype(
             np.int64
         )
-        ysrc = np.arange(self._nA)
+        ysrc = np.arange(self._n_row)
         if sparse:
             ysrc[:r0] = xsrc
         ublk = np.arange(n_u) + m
@@ -228,8 +261,10 @@ class _LayoutMixin:
             ysrc[r0 + n_u : o] = r0 + n_u + ublk
         ysrc[o:nh] = [o + hard_index[next_con(int(c))] for c in hard_c]
         ysrc[nh : nh + ns] = nh + esrc
-        ysrc[nh + ns : self._nlu] = [nh + ns + soft2_index[next_con(int(c))] for c in soft2_c]
-        ysrc[self._nlu :] = self._nlu + esrc
+        ysrc[nh + ns : self._n_bound_row] = [
+            nh + ns + soft2_index[next_con(int(c))] for c in soft2_c
+        ]
+        ysrc[self._n_bound_row :] = self._n_bound_row + esrc
         self._yshift = ysrc.astype(np.int64)
 
     def _load(
@@ -253,15 +288,15 @@ class _LayoutMixin:
                 f"{np.shape(x0)} and {np.shape(u_prev)}"
             )
         try:
-            self._th_x0[...] = x0
-            self._th_up[...] = u_prev
+            self._theta_x0[...] = x0
+            self._theta_up[...] = u_prev
         except ValueError:
             raise ValueError(
                 f"solve(): x0 must have shape ({self.n},) and u_prev ({self.m},), got "
                 f"{np.shape(x0)} and {np.shape(u_prev)}"
             ) from None
         try:
-            self._th_r[...] = y_ref
+            self._theta_r[...] = y_ref
         except ValueError:
             if self.p == 1 and np.shape(y_ref) == (self.Np,):
                 th[s["r"]] = y_ref
@@ -272,15 +307,15 @@ class _LayoutMixin:
                 ) from None
         if self._has_xN:
             if x_ref_N is None:
-                np.dot(self._Cpinv, self._th_r[-1], out=self._th_xN)
+                np.dot(self._Cpinv, self._theta_r[-1], out=self._theta_xN)
             else:
-                self._th_xN[...] = x_ref_N
-        M = self._M_nd
+                self._theta_xN[...] = x_ref_N
+        M = self._M_no_D
         if d is not None:
             d_arr = d if type(d) is np.ndarray else np.asarray(d, dtype=float)
             shape = d_arr.shape
             if shape == self._shape_D:
-                self._th_D[...] = d_arr
+                self._theta_D[...] = d_arr
                 if self._d_dirty == 1:
                     th[s["d"]] = 0.0
                 self._d_dirty = 2

@@ -1,4 +1,52 @@
-r"""Linear MPC."""
+r"""Linear MPC on OSQP: one QP per sampling instant (condensed or sparse form).
+
+Model :math:`x_{k+1} = A x_k + B u_k + d_k`, :math:`y_k = C x_k` (affine term
+:math:`d_k` may vary over the horizon).  With ``delta_u=True`` the condensed decision
+is :math:`z = (\Delta u_0, \dots, \Delta u_{N_c-1})` of the augmented state
+:math:`\xi_k = [x_k; u_{k-1}]` (Maciejowski 2002, sec. 2.4), otherwise
+:math:`z = (u_0, \dots, u_{N_c-1})`; inputs are held after :math:`N_c`.  The prediction
+is affine in :math:`z`: :math:`U = T_z z + T_u u_{-1}`, :math:`X = \Phi x_0 + \Gamma U
++ \Gamma_d D`, :math:`Y = (I \otimes C) X`.  QP:
+
+.. math::
+
+    \min\ \sum_{i=1}^{N_p} \lVert y_i - r_i\rVert_Q^2
+      + \sum_{i=0}^{N_c-1} \lVert \Delta u_i\rVert_R^2
+      + \sum_{i=0}^{N_p-1} \lVert u_i - u^{\mathrm{ref}}_i\rVert_S^2
+      + \lVert x_{N_p} - x^{\mathrm{ref}}_{N}\rVert_P^2
+      + \sum_k \bigl(\rho_k \varepsilon_k + \gamma_k \varepsilon_k^2\bigr)
+
+subject to the hard input box :math:`u_{\min} \le u_i \le u_{\max}` and rate box
+:math:`\Delta u_{\min} \le \Delta u_i \le \Delta u_{\max}`, the soft output box
+:math:`y_{\min,i} - \varepsilon \le y_i \le y_{\max,i} + \varepsilon` and soft polyhedra
+:math:`H_y y_i \le h_{y,i} + \varepsilon`, :math:`H_x x_i \le h_{x,i} + \varepsilon`, an
+optional soft terminal box / polyhedron on :math:`x_{N_p}`, :math:`\varepsilon \ge 0`
+(one slack per row and stage).  The linear slack cost is an exact (L1) penalty
+(Kerrigan & Maciejowski 2000): the soft QP returns the hard solution when that is
+feasible and :math:`\rho_k` exceeds its multiplier; :math:`\gamma_k = 0.01\rho_k` (default)
+makes the QP strictly convex without changing that threshold.  ``np.inf`` makes a row
+hard.  A previous input outside the box with rate limits relaxes the first stages'
+input bounds to the reachable box.
+
+Every per-step vector (``q``, the row offsets, the free response, the cost constant)
+is linear in :math:`\theta = (1, x_0, u_{-1}, r, x^{\mathrm{ref}}_N, d, u^{\mathrm{ref}}, D)`:
+one matrix-vector product per step (layout: :mod:`train_envs.mpc.layout`).
+
+Forms: *condensed* -- :math:`w = (z, \varepsilon)`, dense Hessian; *sparse* --
+:math:`w = (X, U, \varepsilon)` with the dynamics as equality rows (absolute inputs).
+``form="auto"`` picks condensed for ``Nc*m <= 20``.  OSQP (Stellato et al. 2020) is
+set up once; :meth:`LinearMPC.solve` updates ``q, l, u`` and warm-starts from the
+previous solution shifted by one stage; weight and model changes update the matrix
+values of a fixed sparsity pattern.  A non-converged solve is rescued
+(:mod:`train_envs.mpc.recovery`), else the shifted previous plan is applied
+(``fallback=True``).  Measurements behind the defaults: ``docs/design/mpc_engine.md``.
+
+References: J. M. Maciejowski, *Predictive Control with Constraints*, Prentice Hall,
+2002 (sec. 2.4, 3.1); E. C. Kerrigan and J. M. Maciejowski, "Soft constraints and exact
+penalty functions in model predictive control", UKACC Control, 2000; B. Stellato,
+G. Banjac, P. Goulart, A. Bemporad and S. Boyd, "OSQP: an operator splitting solver for
+quadratic programs", Math. Prog. Comp. 12, 637-672, 2020.
+"""
 
 from __future__ import annotations
 
@@ -16,14 +64,13 @@ from train_envs.mpc.bounds import _BoundsMixin
 from train_envs.mpc.description import _check_order, _DescriptionMixin, _vector, _weight
 from train_envs.mpc.layout import _LayoutMixin
 from train_envs.mpc.osqp_backend import (
-    _DEFAULT_OSQP,
-    _RENAMED_SETTINGS,
     _SOLVED,
     _SOLVED_INACCURATE,
     _STATUS_EXCEPTION,
     _STATUS_INVALID_INPUT,
     _UNCONSTRAINED,
     _Backend,
+    osqp_settings_with,
 )
 from train_envs.mpc.recovery import _RecoveryMixin
 from train_envs.mpc.solution import MPCSolution, _Predictions
@@ -74,7 +121,7 @@ class LinearMPC(
             (default) uses ``gamma_k = 0.01 * rho_k`` per row.  For physically small
             violations this term is negligible next to ``rho_k * eps_k`` (it never
             changes the exact-penalty threshold), but its curvature makes violated
-            problems far easier for ADMM (see the module docstring).
+            problems far easier for ADMM (``docs/design/mpc_engine.md``).
         delta_u: condensed decision variables are the increments (default) or the
             absolute inputs; both give the same optimum.  The sparse form always
             uses absolute inputs as variables.
@@ -95,7 +142,7 @@ class LinearMPC(
             and the exact active-set refinement before falling back (default True;
             see :meth:`_rescue`).
         form: ``"condensed"``, ``"sparse"`` or ``"auto"`` (default; condensed for
-            ``Nc*m <= 20``, see the module docstring).
+            ``Nc*m <= 20``, measured in ``docs/design/mpc_engine.md``).
         stage_scales: optional per-stage weight multipliers ``{"Q": (Np,), "R": (Nc,),
             "S": (Np,)}`` (entries >= 0; missing keys = 1): the cost terms of stage
             ``i`` are multiplied by ``c_i`` -- time-varying weights, e.g. the ``1/beta``
@@ -178,7 +225,7 @@ class LinearMPC(
         self._has_du = bool(np.any(np.isfinite(self._dumin)) or np.any(np.isfinite(self._dumax)))
         self._umin_l, self._umax_l = self._umin.tolist(), self._umax.tolist()
         self._dumin_l, self._dumax_l = self._dumin.tolist(), self._dumax.tolist()
-        self._ncm, self._npn = self.Nc * m, self.Np * n
+        self._n_plan, self._n_pred_x = self.Nc * m, self.Np * n
         if warm_start not in ("shift", "previous", "none"):
             raise ValueError(
                 f"warm_start must be 'shift', 'previous' or 'none', got {warm_start!r}"
@@ -191,7 +238,7 @@ class LinearMPC(
             form = self._auto_form(self.Np, self.Nc, n, m)
         self.form = form
         self._sparse = form == "sparse"
-        self._zdu = self.delta_u and not self._sparse
+        self._z_is_du = self.delta_u and not self._sparse
 
         # ---- output / state constraints --------------------------------------
         self._groups = self._make_groups(
@@ -199,9 +246,7 @@ class LinearMPC(
         )
 
         # ---- OSQP settings ---------------------------------------------------
-        settings = dict(_DEFAULT_OSQP)
-        for k, v in dict(osqp_settings or {}).items():
-            settings[_RENAMED_SETTINGS.get(k, k)] = v
+        settings = osqp_settings_with(osqp_settings)
         self.osqp_settings = settings
 
         self._stage_scales = self._check_stage_scales(stage_scales)
@@ -209,11 +254,11 @@ class LinearMPC(
         self._build()
         P0 = sp.csc_matrix(
             (self._P_dense[self._P_rows, self._P_cols], self._P_ind, self._P_ptr),
-            shape=(self._nv, self._nv),
+            shape=(self._n_var, self._n_var),
         )
         A0 = sp.csc_matrix(
             (self._A_dense[self._A_rows, self._A_cols], self._A_ind, self._A_ptr),
-            shape=(self._nA, self._nv),
+            shape=(self._n_row, self._n_var),
         )
         self._backend = _Backend(P0, self._q_init(), A0, self._l, self._u, settings, fast_osqp)
         self._unc_first = bool(unconstrained_first) and not self._sparse
@@ -225,14 +270,14 @@ class LinearMPC(
         self._theta[0] = 1.0
         self._has_xN = "xN" in self._slots
         self._has_ur = "ur" in self._slots
-        self._th_nb = self._theta[: self._nb]
-        self._th_up = self._theta[self._slots["up"]]
-        self._th_x0 = self._theta[self._slots["x0"]]
-        self._th_r = self._theta[self._slots["r"]].reshape(self.Np, self.p)
-        self._th_D = self._theta[self._slots["D"]].reshape(self.Np, self.n)
+        self._theta_no_D = self._theta[: self._n_theta_no_D]
+        self._theta_up = self._theta[self._slots["up"]]
+        self._theta_x0 = self._theta[self._slots["x0"]]
+        self._theta_r = self._theta[self._slots["r"]].reshape(self.Np, self.p)
+        self._theta_D = self._theta[self._slots["D"]].reshape(self.Np, self.n)
         self._shape_D = (self.Np, self.n)
         if self._has_xN:
-            self._th_xN = self._theta[self._slots["xN"]]
+            self._theta_xN = self._theta[self._slots["xN"]]
         self._d_dirty = 0  # 0: no d, 1: constant d written, 2: sequence D written
         self._ur_dirty = False
         self._ws_x: np.ndarray | None = None
@@ -240,7 +285,7 @@ class LinearMPC(
         #: the last solution (primal, dual; dual None: condensed z with zero slacks and
         #: duals), turned into the next warm start only when OSQP runs (_warm_start)
         self._ws_src: tuple[np.ndarray, np.ndarray | None] | None = None
-        self._xbuf = np.zeros(self._nv + 1)
+        self._xbuf = np.zeros(self._n_var + 1)
         self._plan: np.ndarray | None = None
         self._plan_age = 0
         self._u_last: np.ndarray | None = None
@@ -254,9 +299,7 @@ class LinearMPC(
         (costs one KKT refactorisation).
         """
         self.reset()
-        be = self._backend
-        be.prob.update_settings(rho=be.rho0)
-        be.warm_start(np.zeros(self._nv), np.zeros(self._nA))
+        self._backend.reset(self._n_var, self._n_row)
 
     def solve(
         self,
@@ -294,8 +337,8 @@ class LinearMPC(
         th = self._theta
         M = self._load(x0, u_prev, y_ref, d, u_ref, x_ref_N)
         v = self._v
-        tv = self._th_nb if M is self._M_nd else th
-        up = self._th_up
+        tv = self._theta_no_D if M is self._M_no_D else th
+        up = self._theta_up
         if not math.isfinite(np.dot(tv, tv)):  # NaN/inf anywhere in the data
             v.fill(np.nan)
             return self._fallback(t_start, "invalid input", _STATUS_INVALID_INPUT, up)
@@ -312,19 +355,20 @@ class LinearMPC(
                 return self._fallback(t_start, "invalid input", _STATUS_INVALID_INPUT, up)
             changed = True
         elif self._bounds_dirty:
-            self._LUb[...] = self._LUb0
+            self._bounds_call[...] = self._bounds_base
             self._bounds_dirty = False
             changed = True
-        if changed and self._off.stop < self._nlu:  # rows with constant offsets (sparse)
-            k = self._off.stop
-            self._LU[:, k : self._nlu] = self._LUb[:, k:]
-        c = v[self._sl_c]
-        np.subtract(self._Lb_off, c, out=self._l_off)  # l = lower bounds - offsets
-        np.subtract(self._Ub_off, c, out=self._u_off)
+        # rows with constant offsets (sparse form): their bounds are the bounds themselves
+        if changed and self._offset_rows.stop < self._n_bound_row:
+            k = self._offset_rows.stop
+            self._lu[:, k : self._n_bound_row] = self._bounds_call[:, k:]
+        c = v[self._v_offsets]
+        np.subtract(self._lower_call_off, c, out=self._l_off)  # l = lower bounds - offsets
+        np.subtract(self._upper_call_off, c, out=self._u_off)
 
         # unconstrained optimum when it is feasible (exact; see unconstrained_first) ---
         if self._unc_first:
-            hit = self._unconstrained(v[self._sl_q], relax)
+            hit = self._unconstrained(v[self._v_q], relax)
             if hit is not None:
                 x, y, obj_val = hit
                 status_val, status, iters, solve_time = _SOLVED, _UNCONSTRAINED, 0, 0.0
@@ -345,36 +389,13 @@ class LinearMPC(
                 )
 
         # OSQP -----------------------------------------------------------------------
-        be = self._backend
-        raw = be.raw
         try:
             ws_x, ws_y = self._warm_start()
-            if raw is not None and not be.polishing:
-                # compiled solver object, inlined: the wrapper costs more than small solves
-                rc = raw.update_data_vec(v[self._sl_q], self._l, self._u)
-                if rc:
-                    return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
-                if ws_x is not None:
-                    raw.warm_start(ws_x, ws_y)
-                raw.solve()
-                sol = raw.solution
-                x = sol.x
-                y = sol.y
-                info = raw.info
-                status_val = info.status_val
-                iters = info.iter
-                solve_time = info.solve_time
-                obj_val = info.obj_val
-                status = be._status_names.get(status_val) or be.status_name(status_val, info)
-                stats = (status_val, status, iters, solve_time, obj_val, 0)
-            else:
-                rc = be.update_vec(v[self._sl_q], self._l, self._u)
-                if rc:
-                    return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
-                if ws_x is not None:
-                    be.warm_start(ws_x, ws_y)
-                x, y, stats = be.solve()
-                status_val, status, iters, solve_time, obj_val, _ = stats
+            res = self._backend.step(v[self._v_q], self._l, self._u, ws_x, ws_y)
+            if res is None:  # OSQP rejected the vector update
+                return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
+            x, y, stats = res
+            status_val, status, iters, solve_time, obj_val, _ = stats
             if status_val != _SOLVED and self._rescue_on:
                 x, y, stats = self._rescue(x, y, stats)
                 status_val, status, iters, solve_time, obj_val, _ = stats
@@ -406,10 +427,10 @@ class LinearMPC(
         (``slack_max`` when the caller knows it)."""
         # result ---------------------------------------------------------------------
         if self._sparse:  # states and (absolute) inputs are variables
-            U = x[self._oz : self._oe].reshape(self.Nc, self.m)
+            U = x[self._col_input : self._col_slack].reshape(self.Nc, self.m)
         else:  # inputs now, predicted states and outputs when read (MPCSolution.X/Y)
             U = np.dot(self._Wz_u, x[: self._nz])
-            U += v[self._sl_traj_u]
+            U += v[self._v_plan]
             U = U.reshape(self.Nc, self.m)
         u0 = U[0]
         # remove the solver's O(eps) constraint violation: u0 exactly inside both boxes
@@ -428,16 +449,16 @@ class LinearMPC(
                 return self._fallback(t_start, status, status_val, up, iters, solve_time)
         elif not self._clip_to_window(u0, upl):
             return self._fallback(t_start, status, status_val, up, iters, solve_time)
-        Lv = v[self._sl_L]
+        Lv = v[self._v_cost]
         cost = obj_val + float(np.dot(Lv, Lv))
         if slack_max is None:
             ns = self._ns
             if ns == 0:
                 slack_max = 0.0
             elif ns <= 64:  # python max beats a ufunc call for short vectors
-                slack_max = max(0.0, max(x[self._oe :].tolist()))
+                slack_max = max(0.0, max(x[self._col_slack :].tolist()))
             else:
-                slack_max = max(0.0, float(x[self._oe :].max()))
+                slack_max = max(0.0, float(x[self._col_slack :].max()))
         self._ws_src = (x, y)  # the next warm start, formed when OSQP runs next
         self._plan = U
         self._plan_age = 0
@@ -471,14 +492,14 @@ class LinearMPC(
             if y is None:  # condensed decision z, zero slacks and duals
                 xb = self._xbuf
                 xb[: self._nz] = x
-                xb[self._nz : self._nv] = 0.0
+                xb[self._nz : self._n_var] = 0.0
                 if mode == "shift":
                     self._ws_x, self._ws_y = xb[self._xshift], self._zero_duals()
                 elif mode == "previous":
-                    self._ws_x, self._ws_y = xb[: self._nv].copy(), self._zero_duals()
+                    self._ws_x, self._ws_y = xb[: self._n_var].copy(), self._zero_duals()
             elif mode == "shift":
                 xb = self._xbuf
-                xb[: self._nv] = x
+                xb[: self._n_var] = x
                 self._ws_x = xb[self._xshift]
                 self._ws_y = y[self._yshift]
             elif mode == "previous":
@@ -487,13 +508,13 @@ class LinearMPC(
 
     def _zero_duals(self) -> np.ndarray:
         y = self.__dict__.get("_y_zero")
-        if y is None or y.size != self._nA:
-            y = self._y_zero = np.zeros(self._nA)  # shared: nothing writes into duals
+        if y is None or y.size != self._n_row:
+            y = self._y_zero = np.zeros(self._n_row)  # shared: nothing writes into duals
         return y
 
     def _predictions(self, x: np.ndarray, th: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted states and outputs ``(X, Y)`` of the QP solution ``x`` (data ``th``)."""
-        npn = self._npn
+        npn = self._n_pred_x
         if self._sparse:
             X = x[:npn].reshape(self.Np, self.n)
             return X, X if self._y_is_x else X @ self._C.T
@@ -505,9 +526,9 @@ class LinearMPC(
     @property
     def n_variables(self) -> int:
         """Number of QP decision variables (states in the sparse form, inputs, slacks)."""
-        return self._nv
+        return self._n_var
 
     @property
     def n_constraints(self) -> int:
         """Number of QP constraint rows."""
-        return self._nA
+        return self._n_row

@@ -1,9 +1,22 @@
-r"""The OSQP adapter of :class:`~train_envs.mpc.LinearMPC`.
+r"""The OSQP adapter of :class:`~train_envs.mpc.LinearMPC`: the only module touching OSQP.
+
+Default settings: ``eps_abs = eps_rel = 1e-6``, ``max_iter = 4000``,
+``polishing = False``, ``check_dualgap = False``, ``check_termination = 10``,
+``verbose = False``, ``warm_starting = True``; the OSQP 0.6 names ``polish`` and
+``warm_start`` are accepted.  Status values are OSQP's (1 solved, 2 solved inaccurate,
+3 primal infeasible, 7 maximum iterations, 8 time limit, ...) plus -1 (invalid,
+non-finite input) and -2 (solver exception); ``"solved (unconstrained)"`` names a step
+solved by the unconstrained optimum.  ``_BIG = 1e30`` is OSQP's infinity.
+
+:class:`_Backend` calls OSQP's compiled solver object (``OSQP._solver``) directly when
+it has the needed methods -- the Python wrapper's ``update`` and ``solve`` cost more
+than a small solve -- and the public API otherwise (``fast_osqp=False``).
 """
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -32,6 +45,14 @@ _DEFAULT_OSQP: dict[str, Any] = {
 _RENAMED_SETTINGS = {"polish": "polishing", "warm_start": "warm_starting"}
 
 _Stats = tuple[int, str, int, float, float, int]
+
+
+def osqp_settings_with(overrides: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The default OSQP settings updated by ``overrides`` (OSQP 0.6 names accepted)."""
+    settings = dict(_DEFAULT_OSQP)
+    for k, v in dict(overrides or {}).items():
+        settings[_RENAMED_SETTINGS.get(k, k)] = v
+    return settings
 
 
 class _Backend:
@@ -104,6 +125,41 @@ class _Backend:
             t = info.solve_time
             polished = 0
         return x, y, (val, status, int(info.iter), t, info.obj_val, polished)
+
+    def step(
+        self,
+        q: np.ndarray,
+        l: np.ndarray,  # noqa: E741
+        u: np.ndarray,
+        ws_x: np.ndarray | None,
+        ws_y: np.ndarray | None,
+    ) -> tuple[np.ndarray, np.ndarray, _Stats] | None:
+        """One per-step solve: new ``q, l, u``, warm start ``(ws_x, ws_y)`` unless None,
+        OSQP; returns ``x, y, stats`` as :meth:`solve`, None if OSQP rejected the vectors.
+        """
+        raw = self.raw
+        if raw is not None and not self.polishing:
+            # compiled solver object, inlined: the wrapper costs more than small solves
+            if raw.update_data_vec(q, l, u):
+                return None
+            if ws_x is not None:
+                raw.warm_start(ws_x, ws_y)
+            raw.solve()
+            sol = raw.solution
+            info = raw.info
+            val = info.status_val
+            status = self._status_names.get(val) or self.status_name(val, info)
+            return sol.x, sol.y, (val, status, info.iter, info.solve_time, info.obj_val, 0)
+        if self.update_vec(q, l, u):
+            return None
+        if ws_x is not None:
+            self.warm_start(ws_x, ws_y)
+        return self.solve()
+
+    def reset(self, n_var: int, n_row: int) -> None:
+        """OSQP's initial ``rho`` and a zero primal/dual iterate."""
+        self.prob.update_settings(rho=self.rho0)
+        self.warm_start(np.zeros(n_var), np.zeros(n_row))
 
     def status_name(self, val: int, info: Any) -> str:
         """OSQP status string of ``val`` (cached: reading it from ``info`` is slow)."""

@@ -1,4 +1,23 @@
 r"""Recovery of :class:`~train_envs.mpc.LinearMPC` when OSQP does not converge.
+
+ADMM usually identifies the active set long before it meets tight tolerances; this is
+typical when soft constraints are violated (their multipliers sit at the penalty
+:math:`\rho` and the QP behaves like a degenerate LP).  On the statuses solved
+inaccurate, primal infeasible and maximum iterations the cascade
+(:meth:`_RecoveryMixin._rescue`) runs:
+
+1. OSQP continued from the last iterate with tolerance :math:`\max(10^{-4}, 10\epsilon)`
+   and OSQP's polishing;
+2. failing that, an exact primal-dual active-set iteration (semismooth Newton) on the
+   condensed QP with the slacks eliminated, accepted only when every KKT condition of
+   the full QP holds (:meth:`_RecoveryMixin._refine`);
+3. failing that, the fallback (:meth:`_RecoveryMixin._fallback`): the previous plan
+   shifted by one stage (or the held input), clipped stage by stage to the box and
+   rate window; its prediction, soft violation and cost come from the condensed model
+   (:meth:`_RecoveryMixin._evaluate_plan`).
+
+A verified KKT point is reported as ``"solved (polished)"`` (status 1), a relaxed
+unpolished solution as ``"solved inaccurate"`` (status 2).
 """
 
 from __future__ import annotations
@@ -68,12 +87,15 @@ class _RecoveryMixin:
         only if every KKT condition of the full QP holds.  Returns ``(w, y, obj)``
         in OSQP's variables or ``None``.
         """
-        nz, ns, r0 = self._nz, self._ns, self._r0
-        nh, nlu = self._nh - r0, self._nlu - r0  # semantic row counts (no dynamics rows)
+        nz, ns, r0 = self._nz, self._ns, self._row_input
+        nh, nlu = (
+            self._row_soft - r0,
+            self._n_bound_row - r0,
+        )  # semantic row counts (no dynamics rows)
         th = self._theta
         c_sem = self._Csem @ th  # condensed offsets of the semantic rows
-        lb = np.clip(self._Lb[r0:] - c_sem, -_BIG, _BIG)
-        ub = np.clip(self._Ub[r0:] - c_sem, -_BIG, _BIG)
+        lb = np.clip(self._lower_call[r0:] - c_sem, -_BIG, _BIG)
+        ub = np.clip(self._upper_call[r0:] - c_sem, -_BIG, _BIG)
         ys = y[r0:]  # duals of the semantic rows (and of the eps >= 0 rows)
         Gsem = self._Gsem
         Gh = Gsem[:nh]
@@ -90,14 +112,14 @@ class _RecoveryMixin:
         eq_h = (hi_h - lo_h) <= 1e-12 * (1.0 + np.abs(hi_h))
 
         # initial active set from the ADMM iterate (OSQP's polishing rule)
-        z = x[self._oz : self._oe]
+        z = x[self._col_input : self._col_slack]
         ah = Gh @ z
         yh = ys[:nh]
         st_h = np.where((hi_h - ah) < yh, 1, np.where((ah - lo_h) < -yh, -1, 0))
         st_h[eq_h] = 1
         st_s = np.zeros(ns, dtype=np.int64)
         if ns:
-            eps = x[self._oe :]
+            eps = x[self._col_slack :]
             ysu = ys[nh : nh + ns]
             ysl = np.zeros(ns)
             ysl[jl] = ys[nh + ns : nlu]
@@ -204,7 +226,7 @@ class _RecoveryMixin:
             yw[r0 + nlu :] = -rho - g2 * eps_r + np.maximum(mu, 0.0) - np.minimum(mu, 0.0)
         # OSQP objective 1/2 w'Pw + q'w (P stored as its upper triangle)
         Pd = self._P_dense
-        qv = self._v[self._sl_q]
+        qv = self._v[self._v_q]
         obj = float(w @ (Pd @ w) - 0.5 * (np.diagonal(Pd) * w) @ w + qv @ w)
         return w, yw, obj
 
@@ -247,7 +269,7 @@ class _RecoveryMixin:
             prev = ui
         u0 = U[0].copy()
         # prediction with the fallback plan (NaN if the data were not finite)
-        if self._zdu:
+        if self._z_is_du:
             z = np.diff(np.vstack([up[None, :], U]), axis=0).ravel()
         else:
             z = U.ravel()
@@ -257,7 +279,7 @@ class _RecoveryMixin:
         ws_x, ws_y = self._warm_start()
         if ws_x is not None:
             xb = self._xbuf
-            xb[: self._nv] = ws_x
+            xb[: self._n_var] = ws_x
             self._ws_x = xb[self._xshift]
             self._ws_y = ws_y[self._yshift]
         self._u_last = u0
@@ -283,16 +305,18 @@ class _RecoveryMixin:
         Used for fallback plans; NaN where the data of this call were not finite.
         """
         th = self._theta
-        ns, r0 = self._ns, self._r0
-        nh, nlu = self._nh - r0, self._nlu - r0
+        ns, r0 = self._ns, self._row_input
+        nh, nlu = self._row_soft - r0, self._n_bound_row - r0
         with np.errstate(invalid="ignore", over="ignore"):
             X = (self._Xth @ th + self._Sx @ z).reshape(self.Np, self.n)
             Y = X if self._y_is_x else X @ self._C.T
             g = self._Gsem @ z + self._Csem @ th
             eps = np.zeros(ns)
             if ns:
-                eps = np.maximum(eps, g[nh : nh + ns] - self._Ub[r0 + nh : r0 + nh + ns])
-                np.maximum.at(eps, self._soft2_slack, self._Lb[r0 + nh + ns :] - g[nh + ns : nlu])
+                eps = np.maximum(eps, g[nh : nh + ns] - self._upper_call[r0 + nh : r0 + nh + ns])
+                np.maximum.at(
+                    eps, self._soft2_slack, self._lower_call[r0 + nh + ns :] - g[nh + ns : nlu]
+                )
             Lc = self._Lth_c @ th
             cost = float(
                 z @ self._H @ z

@@ -1,4 +1,19 @@
-r"""The unconstrained optimum of :class:`~train_envs.mpc.LinearMPC`.
+r"""The unconstrained optimum of :class:`~train_envs.mpc.LinearMPC` (condensed form).
+
+Without active rows the condensed QP :math:`\min \tfrac12 z^\top P_{zz} z + q_z^\top z`
+has the minimiser :math:`z^* = -P_{zz}^{-1} q_z` (zero slacks).  With absolute inputs as
+variables, input rows whose bounds coincide pin their variable; then
+:math:`z_F = -P_{FF}^{-1} (q_F + P_{FP} z_P)`.  If :math:`z^*` meets every row it is the
+QP's unique optimum (strictly convex cost).  The engine's one minimiser is
+:meth:`_UnconstrainedMixin._unc_minimiser` (inverse formed once per matrix update and
+used only where it inverts to 1e-9; reduced inverses cached per pinned pattern).  Built
+on it: the ``unconstrained_first`` shortcut of :meth:`~train_envs.mpc.LinearMPC.solve`
+(:meth:`_UnconstrainedMixin._unconstrained`), the lower bound
+:meth:`_UnconstrainedMixin.unconstrained_cost` and the explicit affine maps
+:meth:`_UnconstrainedMixin.unconstrained_affine` (the critical region of the empty
+active set; Bemporad, Morari, Dua & Pistikopoulos, Automatica 38(1), 2002).
+:meth:`_UnconstrainedMixin.gain_unconstrained` gives the first-move gain of the same
+optimum from the normal equations, for analysis (:class:`UnconstrainedGain`).
 """
 
 from __future__ import annotations
@@ -97,7 +112,7 @@ class _UnconstrainedMixin:
         """``(z, ½zᵀHz + qᵀz)`` of the minimiser with the pinned inputs at their values
         (read from the row bounds ``lower``) and no other row; None when the shortcut is
         not available (see :meth:`_unconstrained`)."""
-        unc = self._unc
+        unc = self._unc_cache
         nz = self._nz
         if unc is None:
             Pu = self._P_dense[:nz, :nz]
@@ -107,7 +122,7 @@ class _UnconstrainedMixin:
                 ok = np.abs(H @ Hinv - np.eye(nz)).max() < 1e-9
             except np.linalg.LinAlgError:
                 ok = False
-            unc = self._unc = (
+            unc = self._unc_cache = (
                 (
                     np.ascontiguousarray(-Hinv),
                     np.ascontiguousarray(self._A_dense[:, :nz]),
@@ -120,8 +135,8 @@ class _UnconstrainedMixin:
         if unc is False:
             return None
         mHinv, Az, H, reduced = unc
-        r0 = self._r0
-        if self._zdu:
+        r0 = self._row_input
+        if self._z_is_du:
             key = None
         elif relax:  # this call's input rows are the reachable box: look at them
             pin = self._l[r0 : r0 + nz] == self._u[r0 : r0 + nz]
@@ -129,7 +144,7 @@ class _UnconstrainedMixin:
         else:  # the base input rows, which change only in set_base_bounds
             key = self._pin_key
             if key is False:
-                pin = self._Lb0[r0 : r0 + nz] == self._Ub0[r0 : r0 + nz]
+                pin = self._lower_base[r0 : r0 + nz] == self._upper_base[r0 : r0 + nz]
                 key = self._pin_key = pin.tobytes() if pin.any() else None
         if key is not None:
             red = reduced.get(key)
@@ -196,12 +211,12 @@ class _UnconstrainedMixin:
         if hit is None:
             return None
         z, obj = hit
-        Az = self._unc[1]
+        Az = self._unc_cache[1]
         g = np.dot(Az, z)
         # l <= g <= u row by row (bounds are clipped to ±_BIG, so finite; NaN fails)
         if not (_min_reduce(g - self._l) >= 0.0 and _min_reduce(self._u - g) >= 0.0):
             return None
-        x = np.zeros(self._nv)
+        x = np.zeros(self._n_var)
         x[: self._nz] = z
         return x, self._zero_duals(), obj
 
@@ -240,17 +255,17 @@ class _UnconstrainedMixin:
             return None
         th = self._theta
         M = self._load(x0, u_prev, y_ref, d, u_ref, x_ref_N)
-        tv = self._th_nb if M is self._M_nd else th
+        tv = self._theta_no_D if M is self._M_no_D else th
         if not math.isfinite(np.dot(tv, tv)):
             return None
-        if self._has_du and self._outside_box(self._th_up.tolist()):
+        if self._has_du and self._outside_box(self._theta_up.tolist()):
             return None
         v = self._v
         np.dot(M, tv, out=v)  # the full map, as solve() applies it: the same numbers
-        hit = self._unc_minimiser(v[: self._nz], False, self._Lb0)
+        hit = self._unc_minimiser(v[: self._nz], False, self._lower_base)
         if hit is None:
             return None
-        Lv = v[self._sl_L]
+        Lv = v[self._v_cost]
         return hit[1] + float(np.dot(Lv, Lv))
 
     def unconstrained_affine(self) -> UnconstrainedAffine | None:
@@ -270,15 +285,15 @@ class _UnconstrainedMixin:
         if not self._unc_first or self._sparse:
             return None
         nz = self._nz
-        if self._unc_minimiser(np.zeros(nz), False, self._Lb0) is None:
+        if self._unc_minimiser(np.zeros(nz), False, self._lower_base) is None:
             return None
-        mHinv, _, _, reduced = self._unc
-        key = None if self._zdu else self._pin_key
+        mHinv, _, _, reduced = self._unc_cache
+        key = None if self._z_is_du else self._pin_key
         if key is None:
             K = mHinv
         else:
             rows_p, K, _ = reduced[key]
-            if np.any(self._Lb0[rows_p] != 0.0):
+            if np.any(self._lower_base[rows_p] != 0.0):
                 return None
         Mf = self._M_full
         Z = K @ Mf[:nz]
@@ -287,7 +302,7 @@ class _UnconstrainedMixin:
         traj = self._Wz_xy @ Z + self._M_xy
         X = traj[:npn]
         Y = X if self._y_is_x else traj[npn:]
-        U = self._Wz_u @ Z + Mf[self._sl_traj_u]
+        U = self._Wz_u @ Z + Mf[self._v_plan]
         return UnconstrainedAffine(
             Z=Z, X=X, Y=Y, U=U, R=R, slots=dict(self._slots), ntheta=Mf.shape[1]
         )
@@ -305,7 +320,7 @@ class _UnconstrainedMixin:
         except np.linalg.LinAlgError as exc:
             raise ValueError("the condensed Hessian is singular (increase R or S)") from exc
         K = self._Tz_c[:m] @ Z
-        if self._zdu:  # u0 = u_prev + du0
+        if self._z_is_du:  # u0 = u_prev + du0
             K[:, self._slots["up"]] += np.eye(m)
         s = self._slots
         g = UnconstrainedGain(
