@@ -20,7 +20,7 @@ a new setup; the weight-independent part (prediction matrices, constraint rows o
 from __future__ import annotations
 
 from collections.abc import Mapping
-from types import SimpleNamespace
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -59,6 +59,33 @@ def _block_diag(parts: list[np.ndarray]) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class _Structure:
+    """Weight-independent condensed matrices of one model (``θ``: the data vector).
+
+    ``U = Tz z + Tu u_prev``; ``Cb = I ⊗ C``; ``vec(X) = Sx z + Xth θ``,
+    ``vec(Y) = Sy z + Yth θ``, ``vec(U) = Tz z + Uth θ``, ``vec(ΔU) = Dz z + dUth θ``;
+    ``Dth θ`` the affine term of every stage; the output/state constraint rows
+    ``g = Gz z + Gth θ`` and their coefficients ``Gx`` on the state of their stage;
+    ``Cpinv = pinv(C)`` (default terminal reference).
+    """
+
+    Tu: np.ndarray
+    Tz: np.ndarray
+    Cb: np.ndarray
+    Sx: np.ndarray
+    Sy: np.ndarray
+    Dth: np.ndarray
+    Xth: np.ndarray
+    Yth: np.ndarray
+    Uth: np.ndarray
+    dUth: np.ndarray
+    Gz: np.ndarray
+    Gth: np.ndarray
+    Gx: np.ndarray
+    Cpinv: np.ndarray
+
+
 class _AssemblyMixin:
     """``P``, ``q``, ``A`` and the per-step data map from the model and the weights."""
 
@@ -68,7 +95,7 @@ class _AssemblyMixin:
         M[:, s] = np.eye(s.stop - s.start)
         return M
 
-    def _structure(self) -> SimpleNamespace:
+    def _structure(self) -> _Structure:
         """The weight-independent part of :meth:`_build`: condensed prediction matrices and
         the constraint rows on ``z`` (made once per model; weight changes reuse it)."""
         st = self.__dict__.get("_struct")
@@ -127,7 +154,7 @@ class _AssemblyMixin:
             Gz[idx] = GK @ Sz
             Gth[idx] = GK @ St
             Gx[idx] = np.tile(g.G @ C if g.on == "y" else g.G, (K, 1))
-        st = self._struct = SimpleNamespace(
+        st = self._struct = _Structure(
             Tu=Tu,
             Tz=Tz,
             Cb=Cb,
