@@ -1,4 +1,4 @@
-"""Benchmark of the linear-MPC QP core (:mod:`train_envs.controllers.mpc_core`).
+"""Benchmark of the linear-MPC QP engine (:mod:`train_envs.mpc`).
 
 Runs closed-loop simulations and compares the median wall time of
 ``LinearMPC.solve()`` with OSQP's own ``info.solve_time`` (the ratio measures the
@@ -31,7 +31,7 @@ import numpy as np
 import osqp
 import scipy.linalg as sla
 
-from train_envs.controllers.mpc_core import LinearMPC
+from train_envs.mpc import LinearMPC
 
 
 def c2d(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

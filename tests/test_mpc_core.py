@@ -1,4 +1,4 @@
-"""Tests of the linear-MPC QP core (train_envs.controllers.mpc_core).
+"""Tests of the linear-MPC QP engine (train_envs.mpc).
 
 The reference solutions are built independently of the module: the prediction is
 obtained by simulating the model step by step (never through the module's
@@ -13,7 +13,7 @@ import pytest
 import scipy.linalg as sla
 from scipy.optimize import minimize
 
-from train_envs.controllers.mpc_core import (
+from train_envs.mpc import (
     LinearMPC,
     MPCSolution,
     terminal_cost_dare,
@@ -841,3 +841,16 @@ def test_per_call_bounds_of_only_the_constrained_rows():
     bad = hi[:, None].copy()
     bad[3, 0] = np.nan
     assert LinearMPC(A, B, C, **kw).solve(x0, up, ref, y_max=bad).fallback
+
+
+def test_old_import_paths_reexport_the_engine():
+    """``train_envs.controllers.mpc_core`` and ``train_mpc`` keep the engine's names."""
+    import train_envs.controllers.mpc_core as old
+    import train_envs.controllers.train_mpc as tm
+    import train_envs.mpc as engine
+
+    for name in old.__all__:
+        assert getattr(old, name) is getattr(engine, name)
+    for name in ("zoh", "augmented_terminal_cost", "dare_doubling"):
+        assert getattr(tm, name) is getattr(engine, name)
+    from train_envs.controllers.mpc_core import _BIG, _Backend, _matrix, _weight  # noqa: F401

@@ -1,11 +1,11 @@
-"""Train MPCs on the shared core: SEMPC/MPC of paper 000 and the single-point MPC."""
+"""Train MPCs on the shared engine: SEMPC/MPC of paper 000 and the single-point MPC."""
 
 import numpy as np
 import pytest
 
 from train_envs.controllers import make_controller
 from train_envs.controllers.base import Observation
-from train_envs.controllers.train_mpc import augmented_terminal_cost, zoh
+from train_envs.mpc import augmented_terminal_cost, zoh
 from train_envs.scenarios import get_scenario
 from train_envs.simulation import ClosedLoop, simulate
 
@@ -52,7 +52,7 @@ def test_terminal_cost_satisfies_lyapunov_equation():
 def test_terminal_cost_falls_back_to_doubling_when_schur_method_fails(monkeypatch):
     """An RL agent's extreme weights made scipy's QZ reordering give up inside an env
     step; the doubling iteration then gives the same stabilising solution."""
-    import train_envs.controllers.train_mpc as tm
+    import train_envs.mpc.design as design
 
     sc, c, Qx, R = _sempc_terminal_data()
     P_ref, K_ref, _ = augmented_terminal_cost(c._Ad, c._Bd, Qx, R)
@@ -60,7 +60,7 @@ def test_terminal_cost_falls_back_to_doubling_when_schur_method_fails(monkeypatc
     def failing(*args, **kwargs):
         raise ValueError("Reordering of (A, B) failed")
 
-    monkeypatch.setattr(tm, "solve_discrete_are", failing)
+    monkeypatch.setattr(design, "solve_discrete_are", failing)
     P, K, _ = augmented_terminal_cost(c._Ad, c._Bd, Qx, R)
     np.testing.assert_allclose(P, P_ref, rtol=1e-8, atol=1e-10 * np.abs(P_ref).max())
     np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9)

@@ -3,19 +3,16 @@
 Both controllers build a linear prediction model of the train from what the
 :class:`~train_envs.controllers.base.ControlContext` says (nominal train, line,
 reference, actuator), discretise it **exactly** (zero-order hold, scipy ``expm``) and
-hand it to :class:`~train_envs.controllers.mpc_core.LinearMPC` in the Δu-augmented
+hand it to :class:`~train_envs.mpc.LinearMPC` in the Δu-augmented
 form ξ = [x; u(k−1)] of papers 000 (eq. 7) and 001 (eq. 9).
 
 Davis resistance is linearised about the reference speed (000 eq. 4,
 v² ≈ 2 v_r v − v_r²): ``R(v) ≈ R(v_r) + R'(v_lin) (v − v_r)``. The affine part
 ``R(v_r,i) − R'(v_lin) v_r,i`` and the gradient force at the reference position are
 recomputed **every step for every stage** of the horizon (the affine sequence ``D`` of
-the core); the slope R'(v_lin) sits in the model matrix and is re-linearised (a matrix
+the engine); the slope R'(v_lin) sits in the model matrix and is re-linearised (a matrix
 value update in OSQP) only when the reference speed has moved more than
-``relinearise_mps`` (5 m/s) from v_lin — the slope changes slowly (2c Δv/M' ≈ 2e-4
-1/s per m/s for paper 004's metro, a 0.06 % speed change over a 3 s horizon), the
-rebuild costs ~10 ms, and the error of a stale slope multiplies the (small) tracking
-error only.
+``relinearise_mps`` (5 m/s) from v_lin (why that suffices: ``docs/design/mpc_engine.md``).
 
 Terminal cost (SEMPC, 000 §III-B; 001 eq. 11, 20): P is the solution of the discrete
 Riccati equation of the augmented model with the stage weights (scipy
@@ -41,84 +38,20 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm, solve_discrete_are
 
 from train_envs.controllers._common import distribute, input_shares, per_car_davis
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
-from train_envs.controllers.mpc_core import LinearMPC
+from train_envs.mpc import LinearMPC, augmented_terminal_cost, dare_doubling, zoh
 from train_envs.plants.lookup import gradient_table
 from train_envs.trains import G
 
-
-def zoh(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation of ``ẋ = Ac x + Bc u`` (one ``expm``)."""
-    n, m = Ac.shape[0], Bc.shape[1]
-    M = np.zeros((n + m, n + m))
-    M[:n, :n] = Ac * dt
-    M[:n, n:] = Bc * dt
-    E = expm(M)
-    return E[:n, :n], E[:n, n:]
-
-
-def augmented_terminal_cost(
-    A: np.ndarray, B: np.ndarray, Qx: np.ndarray, R: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Riccati terminal cost of the Δu-augmented model ξ = [x; u(k−1)].
-
-    Returns ``(P_aug, K, P_x)``: the full (n+m)² solution, the LQR gain of
-    ``Δu = −K ξ`` and the x-block used as the core's state terminal weight.
-    """
-    n, m = B.shape
-    Aa = np.block([[A, B], [np.zeros((m, n)), np.eye(m)]])
-    Ba = np.vstack([B, np.eye(m)])
-    Qa = np.zeros((n + m, n + m))
-    Qa[:n, :n] = Qx
-    try:
-        P = solve_discrete_are(Aa, Ba, Qa, R)
-    except (ValueError, np.linalg.LinAlgError):
-        # scipy's QZ reordering gives up on badly scaled weights (e.g. an RL agent's
-        # q_dx = 1e8 with r_du = 1e-6): the doubling iteration has no reordering step
-        P = dare_doubling(Aa, Ba, Qa, R)
-    P = 0.5 * (P + P.T)
-    K = np.linalg.solve(R + Ba.T @ P @ Ba, Ba.T @ P @ Aa)
-    return P, K, P[:n, :n].copy()
-
-
-def dare_doubling(
-    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, tol: float = 1e-12
-) -> np.ndarray:
-    """Stabilising solution of the DARE by the structure-preserving doubling algorithm.
-
-    ``P = AᵀPA − AᵀPB (R + BᵀPB)⁻¹ BᵀPA + Q`` (Chu, Fan & Lin, "A structure-preserving
-    doubling algorithm for continuous-time algebraic Riccati equations", Linear
-    Algebra Appl. 396, 2005, and its discrete-time form): with ``A₀ = A``,
-    ``G₀ = B R⁻¹ Bᵀ``, ``H₀ = Q``, each step ``W = I + G H``::
-
-        A ← A W⁻¹ A,   G ← G + A W⁻¹ G Aᵀ,   H ← H + Aᵀ H W⁻¹ A
-
-    and ``H → P`` quadratically.  Used where scipy's Schur method fails; raises
-    ``np.linalg.LinAlgError`` if it does not converge in 80 doublings.
-    """
-    n = A.shape[0]
-    Ak = np.array(A, dtype=float)
-    G = B @ np.linalg.solve(R, B.T)
-    H = np.array(Q, dtype=float)
-    eye = np.eye(n)
-    for _ in range(80):
-        W = eye + G @ H
-        WA = np.linalg.solve(W, Ak)
-        WG = np.linalg.solve(W, G)
-        H_new = H + Ak.T @ H @ WA
-        G = G + Ak @ WG @ Ak.T
-        Ak = Ak @ WA
-        H_new = 0.5 * (H_new + H_new.T)
-        if not np.all(np.isfinite(H_new)):
-            break
-        done = np.linalg.norm(H_new - H, 1) <= tol * max(1.0, np.linalg.norm(H_new, 1))
-        H = H_new
-        if done:
-            return H
-    raise np.linalg.LinAlgError("DARE doubling iteration did not converge")
+__all__ = [
+    "MultiCarMPC",
+    "PointMassMPC",
+    "augmented_terminal_cost",
+    "dare_doubling",
+    "zoh",
+]
 
 
 class _TrainMPCBase(Controller):

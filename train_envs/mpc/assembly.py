@@ -1,0 +1,426 @@
+r"""Assembly of the QP of :class:`~train_envs.mpc.LinearMPC`: ``P``, ``A`` and the data map.
+
+Condensed prediction (Maciejowski 2002, sec. 3.1): :math:`\Phi = [A; A^2; \dots;
+A^{N_p}]`, :math:`\Gamma_{it} = A^{i-t} B`, :math:`\Gamma_{d,it} = A^{i-t}` (:math:`t \le
+i`); inputs :math:`U = T_z z + T_u u_{-1}`, :math:`\Delta U = D_z z + D_u u_{-1}`.  All
+weighted residuals :math:`e = E_z z + E_\theta \theta` with block weight :math:`W` give
+the condensed Hessian :math:`H = E_z^\top W E_z` (OSQP's :math:`P_{zz} = 2H`) and
+:math:`q_z = 2 E_z^\top W E_\theta \theta`; the constant :math:`\lVert L_w E_\theta
+\theta\rVert^2` (:math:`L_w^\top L_w = W`) makes ``MPCSolution.cost`` the full cost.
+The sparse form keeps the states as variables and the dynamics
+:math:`-x_{t+1} + A x_t + B u_t + d_t = 0` as equality rows.
+
+Every block a weight or model change can touch is stored dense (zeros included) in a
+sparsity pattern fixed at construction, so :meth:`_AssemblyMixin.set_weights` and
+:meth:`_AssemblyMixin.set_model` update OSQP's matrix values (``Px``, ``Ax``) without
+a new setup; the weight-independent part (prediction matrices, constraint rows on
+``z``) is made once per model (:meth:`_AssemblyMixin._structure`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from train_envs.mpc.description import _check_penalty_arg, _weight
+
+
+def _psd_sqrt(W: np.ndarray) -> np.ndarray:
+    """Return L with L.T @ L == W for a symmetric PSD W (rows of zero weight dropped)."""
+    lam, V = np.linalg.eigh(W)
+    keep = lam > 1e-14 * max(1.0, float(np.max(np.abs(lam), initial=0.0)))
+    return np.sqrt(lam[keep])[:, None] * V[:, keep].T
+
+
+def _scaled_blocks(D: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``np.kron(D, X)`` for a diagonal ``D``: the blocks ``D_ii X`` on the diagonal (the
+    same products, without kron's general machinery; called at every weight change)."""
+    k = D.shape[0]
+    r, c = X.shape
+    out = np.zeros((k, r, k, c))
+    i = np.arange(k)
+    out[i, :, i, :] = np.diag(D)[:, None, None] * X
+    return out.reshape(k * r, k * c)
+
+
+def _block_diag(parts: list[np.ndarray]) -> np.ndarray:
+    """``scipy.linalg.block_diag`` of 2-D arrays (without its argument handling)."""
+    rows = sum(a.shape[0] for a in parts)
+    cols = sum(a.shape[1] for a in parts)
+    out = np.zeros((rows, cols))
+    r = c = 0
+    for a in parts:
+        out[r : r + a.shape[0], c : c + a.shape[1]] = a
+        r += a.shape[0]
+        c += a.shape[1]
+    return out
+
+
+@dataclass(frozen=True)
+class _Structure:
+    """Weight-independent condensed matrices of one model (``θ``: the data vector).
+
+    ``U = Tz z + Tu u_prev``; ``Cb = I ⊗ C``; ``vec(X) = Sx z + Xth θ``,
+    ``vec(Y) = Sy z + Yth θ``, ``vec(U) = Tz z + Uth θ``, ``vec(ΔU) = Dz z + dUth θ``;
+    ``Dth θ`` the affine term of every stage; the output/state constraint rows
+    ``g = Gz z + Gth θ`` and their coefficients ``Gx`` on the state of their stage;
+    ``Cpinv = pinv(C)`` (default terminal reference).
+    """
+
+    Tu: np.ndarray
+    Tz: np.ndarray
+    Cb: np.ndarray
+    Sx: np.ndarray
+    Sy: np.ndarray
+    Dth: np.ndarray
+    Xth: np.ndarray
+    Yth: np.ndarray
+    Uth: np.ndarray
+    dUth: np.ndarray
+    Gz: np.ndarray
+    Gth: np.ndarray
+    Gx: np.ndarray
+    Cpinv: np.ndarray
+
+
+class _AssemblyMixin:
+    """``P``, ``q``, ``A`` and the per-step data map from the model and the weights."""
+
+    def _sel(self, name: str, ntheta: int) -> np.ndarray:
+        s = self._slots[name]
+        M = np.zeros((s.stop - s.start, ntheta))
+        M[:, s] = np.eye(s.stop - s.start)
+        return M
+
+    def _structure(self) -> _Structure:
+        """The weight-independent part of :meth:`_build`: condensed prediction matrices and
+        the constraint rows on ``z`` (made once per model; weight changes reuse it)."""
+        st = self.__dict__.get("_struct")
+        if st is not None:
+            return st
+        n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
+        A, B, C = self._A, self._B, self._C
+        nt = self._ntheta
+        sel = self._sel
+        # condensed prediction -------------------------------------------------------
+        powers = [np.eye(n)]
+        for _ in range(Np):
+            powers.append(A @ powers[-1])
+        Phi = np.vstack(powers[1:])
+        Gam = np.zeros((Np * n, Np * m))
+        GamD = np.zeros((Np * n, Np * n))
+        for i in range(Np):  # x_{i+1}
+            for t in range(i + 1):
+                Gam[i * n : (i + 1) * n, t * m : (t + 1) * m] = powers[i - t] @ B
+                GamD[i * n : (i + 1) * n, t * n : (t + 1) * n] = powers[i - t]
+        hold = np.minimum(np.arange(Np), Nc - 1)  # stage t uses block hold[t]
+        if self._z_is_du:
+            blocks = (np.arange(Nc)[None, :] <= hold[:, None]).astype(float)
+            Tu = np.kron(np.ones((Np, 1)), np.eye(m))
+            Du = np.zeros((nz, m))
+        else:
+            blocks = (np.arange(Nc)[None, :] == hold[:, None]).astype(float)
+            Tu = np.zeros((Np * m, m))
+            Du = np.zeros((nz, m))
+            Du[:m] = -np.eye(m)
+        Tz = np.kron(blocks, np.eye(m))
+        Cb = np.kron(np.eye(Np), C)
+        Sx = Gam @ Tz
+        Sy = Cb @ Sx
+        ones_n = np.kron(np.ones((Np, 1)), np.eye(n))
+        Dth = ones_n @ sel("d", nt) + sel("D", nt)  # affine term of every stage
+        Xth = Phi @ sel("x0", nt) + Gam @ Tu @ sel("up", nt) + GamD @ Dth
+        Yth = Cb @ Xth
+        Uth = Tu @ sel("up", nt)
+        dUth = Du @ sel("up", nt)
+
+        # output/state constraint rows on z (condensed)
+        con = self._con
+        ncon = con["g"].size
+        Gz = np.zeros((ncon, nz))
+        Gth = np.zeros((ncon, nt))
+        Gx = np.zeros((ncon, n))  # coefficient on the state of the row's stage
+        for gi, g in enumerate(self._groups):
+            idx = np.flatnonzero(con["g"] == gi)
+            K = g.stages.size
+            dim = p if g.on == "y" else n
+            rows = (g.stages[:, None] - 1) * dim + np.arange(dim)[None, :]
+            Sz = (Sy if g.on == "y" else Sx)[rows.ravel()]
+            St = (Yth if g.on == "y" else Xth)[rows.ravel()]
+            GK = np.kron(np.eye(K), g.G)
+            Gz[idx] = GK @ Sz
+            Gth[idx] = GK @ St
+            Gx[idx] = np.tile(g.G @ C if g.on == "y" else g.G, (K, 1))
+        st = self._struct = _Structure(
+            Tu=Tu,
+            Tz=Tz,
+            Cb=Cb,
+            Sx=Sx,
+            Sy=Sy,
+            Dth=Dth,
+            Xth=Xth,
+            Yth=Yth,
+            Uth=Uth,
+            dUth=dUth,
+            Gz=Gz,
+            Gth=Gth,
+            Gx=Gx,
+            Cpinv=np.linalg.pinv(C),
+        )
+        return st
+
+    def _build(self) -> None:
+        """Compute every model/weight-dependent matrix (dense) and the OSQP values.
+
+        The condensed quantities (prediction matrices, Hessian ``H``, the maps of the
+        constraint rows onto ``z``) are built for both forms: they give
+        :meth:`gain_unconstrained`, the exact refinement and the fallback prediction.
+        """
+        self._unc_cache = None  # the unconstrained shortcut's data follow the matrices
+        self._pin_key: bytes | None | bool = False  # pinned inputs: not looked at yet
+        n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
+        A, B, C = self._A, self._B, self._C
+        nt = self._ntheta
+        sel = self._sel
+        sparse = self._sparse
+
+        S_ = self._structure()
+        Tu, Tz, Cb, Sx, Sy = S_.Tu, S_.Tz, S_.Cb, S_.Sx, S_.Sy
+        Dth, Xth, Yth, Uth, dUth = S_.Dth, S_.Xth, S_.Yth, S_.Uth, S_.dUth
+        Gz, Gth, Gx = S_.Gz, S_.Gth, S_.Gx
+
+        # weighted residuals e = Ez z + Eth theta (condensed), weights W ------------------
+        Ez_parts = [Sy, self._Dz]
+        Eth_parts = [Yth - sel("r", nt), dUth]
+        # per-stage weight scales (``stage_scales``; identity by default)
+        sQ, sR, sS = self._stage_scales
+        DQ = np.eye(Np) if sQ is None else np.diag(sQ)
+        DR = np.eye(Nc) if sR is None else np.diag(sR)
+        DS = np.eye(Np) if sS is None else np.diag(sS)
+        W_parts = [_scaled_blocks(DQ, self._Q), _scaled_blocks(DR, self._R)]
+        L_parts = [
+            _scaled_blocks(np.sqrt(DQ), _psd_sqrt(self._Q)),
+            _scaled_blocks(np.sqrt(DR), _psd_sqrt(self._R)),
+        ]
+        if self._S is not None:
+            Ez_parts.append(Tz)
+            Eth_parts.append(Uth - sel("ur", nt))
+            W_parts.append(_scaled_blocks(DS, self._S))
+            L_parts.append(_scaled_blocks(np.sqrt(DS), _psd_sqrt(self._S)))
+        if self._P is not None:
+            if self.terminal == "state":
+                Ez_parts.append(Sx[-n:])
+                Eth_parts.append(Xth[-n:] - sel("xN", nt))
+            else:
+                Ez_parts.append(Sy[-p:])
+                Eth_parts.append(Yth[-p:] - sel("r", nt)[-p:])
+            W_parts.append(self._P)
+            L_parts.append(_psd_sqrt(self._P))
+        Ez = np.vstack(Ez_parts)
+        Eth = np.vstack(Eth_parts)
+        W = _block_diag(W_parts)
+        Lw = _block_diag(L_parts)
+        EzW = Ez.T @ W
+        H = EzW @ Ez
+        H = 0.5 * (H + H.T)
+        Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
+        Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+
+        con = self._con
+        rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
+        self._rho_s = rho_s
+        self._gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
+        ns, nh, nlu, r0 = self._ns, self._row_soft, self._n_bound_row, self._row_input
+        n_u = nz
+        n_du = nz if self._has_du else 0
+        o = r0 + n_u + n_du
+        hard_c, soft_c, soft2_c = self._hard_c, self._soft_c, self._soft2_c
+        # semantic rows (everything except the dynamics) in condensed coordinates
+        self._Gsem = np.vstack(
+            [self._Tz_c] + ([self._Dz] if n_du else []) + [Gz[hard_c], Gz[soft_c], Gz[soft2_c]]
+        )
+        self._Csem = np.vstack(
+            [Uth[:nz]] + ([dUth] if n_du else []) + [Gth[hard_c], Gth[soft_c], Gth[soft2_c]]
+        )
+
+        # OSQP matrices ------------------------------------------------------------------
+        oz, oe, nv = self._col_input, self._col_slack, self._n_var
+        sl = np.arange(ns)
+        Ad = np.zeros((self._n_row, nv))
+        Pd = np.zeros((nv, nv))
+        if not sparse:
+            Ad[:nlu, :nz] = self._Gsem
+            Pd[:nz, :nz] = 2.0 * np.triu(H)
+            Hw_q = Fq  # q of the non-slack variables
+            Lth = Lth_c
+            Cth = self._Csem
+        else:
+            nxv = self._nxv
+            # dynamics: -x_{t+1} + A x_t + B u_t + (A x0 [t = 0] + d_t) = 0
+            Cth_dyn = np.zeros((nxv, nt))
+            for t in range(Np):
+                rows = slice(t * n, (t + 1) * n)
+                Ad[rows, t * n : (t + 1) * n] = -np.eye(n)
+                if t:
+                    Ad[rows, (t - 1) * n : t * n] = A
+                Ad[rows, oz : oz + nz] = B @ Tz[t * m : (t + 1) * m]
+                Cth_dyn[rows] = B @ Tu[t * m : (t + 1) * m] @ sel("up", nt) + Dth[rows]
+            Cth_dyn[:n] += A @ sel("x0", nt)
+            Ad[r0 : r0 + n_u, oz : oz + nz] = self._Tz_c
+            if n_du:
+                Ad[r0 + n_u : o, oz : oz + nz] = self._Dz
+            for rows_c, at in (
+                (hard_c, np.arange(o, nh)),
+                (soft_c, np.arange(nh, nh + ns)),
+                (soft2_c, np.arange(nh + ns, nlu)),
+            ):
+                for k, rr in zip(rows_c, at, strict=True):
+                    st = con["s"][k] - 1
+                    Ad[rr, st * n : (st + 1) * n] = Gx[k]
+            # cost: residuals Ew w + Eth_s theta in the variables w = (X, z)
+            Ew_parts = [np.hstack([Cb, np.zeros((Np * p, nz))])]
+            Ew_parts.append(np.hstack([np.zeros((nz, nxv)), self._Dz]))
+            Eth_s = [-sel("r", nt), dUth]
+            if self._S is not None:
+                Ew_parts.append(np.hstack([np.zeros((Np * m, nxv)), Tz]))
+                Eth_s.append(Uth - sel("ur", nt))
+            if self._P is not None:
+                last = np.zeros((n, nxv + nz))
+                last[:, nxv - n : nxv] = np.eye(n)
+                if self.terminal == "state":
+                    Ew_parts.append(last)
+                    Eth_s.append(-sel("xN", nt))
+                else:
+                    Ew_parts.append(C @ last)
+                    Eth_s.append(-sel("r", nt)[-p:])
+            Ew = np.vstack(Ew_parts)
+            EwW = Ew.T @ W
+            Hw = EwW @ Ew
+            Pd[:oe, :oe] = 2.0 * np.triu(0.5 * (Hw + Hw.T))
+            Hw_q = 2.0 * EwW @ np.vstack(Eth_s)
+            Lth = Lw @ np.vstack(Eth_s)
+            # theta-dependent offsets: dynamics, input and rate rows (the state and
+            # output rows act on the variables directly and have constant bounds)
+            Cth = np.vstack([Cth_dyn, Uth[:nz]] + ([dUth] if n_du else []))
+        Ad[nh + sl, oe + sl] = -1.0
+        if soft2_c.size:
+            Ad[nh + ns + np.arange(soft2_c.size), oe + self._soft2_slack] = 1.0
+        Ad[nlu + sl, oe + sl] = 1.0
+        Pd[oe + sl, oe + sl] = 2.0 * self._gamma_s
+        if np.any(Ad[~self._Amask] != 0) or np.any(Pd[~self._Pmask] != 0):
+            raise RuntimeError("internal error: QP entries outside the fixed sparsity pattern")
+        self._A_dense, self._P_dense = Ad, Pd
+
+        # the per-step affine map v = M theta ---------------------------------------------
+        # v = [q (nv) | offsets of the rows self._offset_rows | trajectory offsets | cost factor]
+        qth = np.zeros((nv, nt))
+        qth[:oe] = Hw_q
+        qth[oe:, 0] = rho_s  # column 0 of theta is the constant 1
+        self._y_is_x = p == n and np.array_equal(C, np.eye(n))
+        # (condensed: the planned inputs' offsets are part of v; the predicted states and
+        # outputs, rarely read, have their own map evaluated on demand -- MPCSolution.X/Y)
+        if sparse:  # the states are variables
+            traj_th: list[np.ndarray] = []
+            self._M_xy = self._Wz_xy = None
+        else:
+            traj_th = [Uth[:nz]]
+            self._M_xy = np.ascontiguousarray(np.vstack([Xth] + ([] if self._y_is_x else [Yth])))
+            self._Wz_xy = np.ascontiguousarray(np.vstack([Sx] + ([] if self._y_is_x else [Sy])))
+        Lth = Lth[np.any(Lth != 0, axis=1)]
+        M = np.vstack([qth, Cth] + traj_th + [Lth])
+        self._M_full = np.ascontiguousarray(M)
+        self._M_no_D = np.ascontiguousarray(M[:, : self._n_theta_no_D])
+        self._v = np.empty(M.shape[0])
+        self._v_q = slice(0, nv)
+        n_off = self._offset_rows.stop - self._offset_rows.start
+        self._v_offsets = slice(nv, nv + n_off)
+        t0 = nv + n_off
+        n_tu = 0 if sparse else self._n_plan
+        self._v_plan = slice(t0, t0 + n_tu)
+        self._v_cost = slice(t0 + n_tu, M.shape[0])
+        self._Wz_u = None if sparse else np.ascontiguousarray(self._Tz_c)
+        self._Cpinv = S_.Cpinv
+        # condensed data for gain_unconstrained(), the refinement and the fallback
+        self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
+        # weighted residuals e = LwEz z + Lth_c theta (unconstrained_affine's cost)
+        self._LwEz = None if sparse else Lw @ Ez
+        self._Xth, self._Sx = Xth, Sx
+
+    def _q_init(self) -> np.ndarray:
+        q = np.zeros(self._n_var)
+        q[self._col_slack :] = self._rho_s
+        return q
+
+    def _push_matrices(self) -> None:
+        Px = self._P_dense[self._P_rows, self._P_cols]
+        Ax = self._A_dense[self._A_rows, self._A_cols]
+        self._backend.update_mat(Px, Ax)
+
+    def set_weights(
+        self,
+        *,
+        Q: ArrayLike | None = None,
+        R: ArrayLike | None = None,
+        S: ArrayLike | None = None,
+        P: ArrayLike | None = None,
+        soft_penalty: float | Mapping[str, float | ArrayLike] | None = None,
+        soft_quadratic: float | None = None,
+        stage_scales: Mapping[str, ArrayLike] | None = None,
+    ) -> None:
+        """Change cost weights (``None`` keeps a weight); matrix values are updated in OSQP.
+
+        ``stage_scales`` replaces the per-stage multipliers (see the constructor).
+
+        ``S`` / ``P`` can only be changed if they were given at construction (pass zeros
+        to reserve them).  ``soft_penalty`` may change finite values but cannot turn a
+        soft row hard or vice versa (that would change the QP structure).
+        """
+        Q_ = self._Q if Q is None else _weight("Q", Q, self.p)
+        R_ = self._R if R is None else _weight("R", R, self.m)
+        if S is not None and self._S is None:
+            raise ValueError("S was not given at construction; pass S=0 there to reserve it")
+        if P is not None and self._P is None:
+            raise ValueError("P was not given at construction; pass P=0 there to reserve it")
+        S_ = self._S if S is None else _weight("S", S, self.m)
+        dimP = self.n if self.terminal == "state" else self.p
+        P_ = self._P if P is None else _weight("P", P, dimP)
+        g_ = self._gamma if soft_quadratic is None else self._check_gamma(soft_quadratic)
+        scales = None if stage_scales is None else self._check_stage_scales(stage_scales)
+        new_rho = None
+        if soft_penalty is not None:
+            _check_penalty_arg(soft_penalty)
+            parts = []
+            for g in self._groups:
+                full = self._penalty(g.name, soft_penalty, g.dim_full)
+                rho_g = full[g.cols]
+                if np.any(np.isfinite(rho_g) != np.isfinite(g.rho)):
+                    raise ValueError(
+                        f"soft_penalty[{g.name!r}] cannot switch rows between soft and hard "
+                        "after construction"
+                    )
+                parts.append(rho_g)
+            new_rho = parts
+        self._Q, self._R, self._S, self._P, self._gamma = Q_, R_, S_, P_, g_
+        if scales is not None:
+            self._stage_scales = scales
+        if new_rho is not None:
+            for g, rho_g in zip(self._groups, new_rho, strict=True):
+                g.rho = rho_g
+            self._con["rho"] = (
+                np.concatenate([np.tile(g.rho, g.stages.size) for g in self._groups])
+                if self._groups
+                else np.zeros(0)
+            )
+        self._build()
+        self._push_matrices()
+
+    def set_model(self, A: ArrayLike, B: ArrayLike, C: ArrayLike | None = None) -> None:
+        """Replace the model (same dimensions; ``C=None`` keeps the current ``C``)."""
+        A_, B_, C_ = self._check_model(A, B, self._C if C is None else C, (self.n, self.m, self.p))
+        self._A, self._B, self._C = A_, B_, C_
+        self._struct = None
+        self._build()
+        self._push_matrices()

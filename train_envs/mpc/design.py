@@ -1,0 +1,138 @@
+r"""Design helpers shared by the controllers: terminal costs and discretisation.
+
+* :func:`terminal_cost_dare` -- LQR terminal weight from the discrete algebraic Riccati
+  equation :math:`P = A^\top P A - A^\top P B (R + B^\top P B)^{-1} B^\top P A + Q_x`;
+* :func:`terminal_cost_lyapunov` -- cost-to-go of a fixed stable loop,
+  :math:`A_{cl}^\top P A_{cl} - P + Q_x = 0`;
+* :func:`augmented_terminal_cost` -- the Riccati terminal cost of the
+  :math:`\Delta u`-augmented model :math:`\xi = [x; u_{k-1}]` (papers 000 sec. III-B,
+  001 eq. 11, 20), with :func:`dare_doubling` where scipy's Schur method fails;
+* :func:`zoh` -- exact zero-order-hold discretisation (one matrix exponential).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.linalg import expm, solve_discrete_are, solve_discrete_lyapunov
+
+from train_envs.mpc.description import _matrix, _weight
+
+
+def terminal_cost_dare(
+    A: ArrayLike, B: ArrayLike, Qx: ArrayLike, R: ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""Infinite-horizon LQR terminal weight.
+
+    Solves :math:`P = A^\top P A - A^\top P B (R + B^\top P B)^{-1} B^\top P A + Q_x`
+    and returns ``(P, K)`` with :math:`K = (R + B^\top P B)^{-1} B^\top P A`
+    (control law :math:`u = -K x`).
+    """
+    A_ = _matrix("A", A)
+    n = A_.shape[0]
+    if A_.shape != (n, n):
+        raise ValueError(f"A must be square, got shape {A_.shape}")
+    B_ = _matrix("B", B, column=True)
+    if B_.shape[0] != n:
+        raise ValueError(f"B must have {n} rows to match A, got shape {B_.shape}")
+    m = B_.shape[1]
+    Q_ = _weight("Qx", Qx, n)
+    R_ = _weight("R", R, m)
+    try:
+        P = solve_discrete_are(A_, B_, Q_, R_)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ValueError(f"terminal_cost_dare: no stabilising solution ({exc})") from exc
+    P = 0.5 * (P + P.T)
+    K = np.linalg.solve(R_ + B_.T @ P @ B_, B_.T @ P @ A_)
+    return P, K
+
+
+def terminal_cost_lyapunov(A_cl: ArrayLike, Qx: ArrayLike) -> np.ndarray:
+    r"""Terminal weight of a fixed stabilising closed loop :math:`x^+ = A_{cl} x`.
+
+    Returns ``P`` with :math:`A_{cl}^\top P A_{cl} - P + Q_x = 0` (the cost-to-go
+    :math:`\sum_k x_k^\top Q_x x_k`).  For a local law ``u = -K x`` pass
+    ``A_cl = A - B K`` and ``Qx + K.T @ R @ K``.  Raises ``ValueError`` if
+    ``A_cl`` is not Schur stable.
+    """
+    Acl = _matrix("A_cl", A_cl)
+    n = Acl.shape[0]
+    if Acl.shape != (n, n):
+        raise ValueError(f"A_cl must be square, got shape {Acl.shape}")
+    Q_ = _weight("Qx", Qx, n)
+    rad = float(np.max(np.abs(np.linalg.eigvals(Acl)))) if n else 0.0
+    if rad >= 1.0:
+        raise ValueError(f"A_cl must be Schur stable (spectral radius {rad:.6g} >= 1)")
+    P = solve_discrete_lyapunov(Acl.T, Q_)
+    return 0.5 * (P + P.T)
+
+
+def zoh(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation of ``ẋ = Ac x + Bc u`` (one ``expm``)."""
+    n, m = Ac.shape[0], Bc.shape[1]
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = Ac * dt
+    M[:n, n:] = Bc * dt
+    E = expm(M)
+    return E[:n, :n], E[:n, n:]
+
+
+def augmented_terminal_cost(
+    A: np.ndarray, B: np.ndarray, Qx: np.ndarray, R: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Riccati terminal cost of the Δu-augmented model ξ = [x; u(k−1)].
+
+    Returns ``(P_aug, K, P_x)``: the full (n+m)² solution, the LQR gain of
+    ``Δu = −K ξ`` and the x-block used as the core's state terminal weight.
+    """
+    n, m = B.shape
+    Aa = np.block([[A, B], [np.zeros((m, n)), np.eye(m)]])
+    Ba = np.vstack([B, np.eye(m)])
+    Qa = np.zeros((n + m, n + m))
+    Qa[:n, :n] = Qx
+    try:
+        P = solve_discrete_are(Aa, Ba, Qa, R)
+    except (ValueError, np.linalg.LinAlgError):
+        # scipy's QZ reordering gives up on badly scaled weights (e.g. an RL agent's
+        # q_dx = 1e8 with r_du = 1e-6): the doubling iteration has no reordering step
+        P = dare_doubling(Aa, Ba, Qa, R)
+    P = 0.5 * (P + P.T)
+    K = np.linalg.solve(R + Ba.T @ P @ Ba, Ba.T @ P @ Aa)
+    return P, K, P[:n, :n].copy()
+
+
+def dare_doubling(
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, tol: float = 1e-12
+) -> np.ndarray:
+    """Stabilising solution of the DARE by the structure-preserving doubling algorithm.
+
+    ``P = AᵀPA − AᵀPB (R + BᵀPB)⁻¹ BᵀPA + Q`` (Chu, Fan & Lin, "A structure-preserving
+    doubling algorithm for continuous-time algebraic Riccati equations", Linear
+    Algebra Appl. 396, 2005, and its discrete-time form): with ``A₀ = A``,
+    ``G₀ = B R⁻¹ Bᵀ``, ``H₀ = Q``, each step ``W = I + G H``::
+
+        A ← A W⁻¹ A,   G ← G + A W⁻¹ G Aᵀ,   H ← H + Aᵀ H W⁻¹ A
+
+    and ``H → P`` quadratically.  Used where scipy's Schur method fails; raises
+    ``np.linalg.LinAlgError`` if it does not converge in 80 doublings.
+    """
+    n = A.shape[0]
+    Ak = np.array(A, dtype=float)
+    G = B @ np.linalg.solve(R, B.T)
+    H = np.array(Q, dtype=float)
+    eye = np.eye(n)
+    for _ in range(80):
+        W = eye + G @ H
+        WA = np.linalg.solve(W, Ak)
+        WG = np.linalg.solve(W, G)
+        H_new = H + Ak.T @ H @ WA
+        G = G + Ak @ WG @ Ak.T
+        Ak = Ak @ WA
+        H_new = 0.5 * (H_new + H_new.T)
+        if not np.all(np.isfinite(H_new)):
+            break
+        done = np.linalg.norm(H_new - H, 1) <= tol * max(1.0, np.linalg.norm(H_new, 1))
+        H = H_new
+        if done:
+            return H
+    raise np.linalg.LinAlgError("DARE doubling iteration did not converge")

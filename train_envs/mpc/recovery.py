@@ -1,0 +1,331 @@
+r"""Recovery of :class:`~train_envs.mpc.LinearMPC` when OSQP does not converge.
+
+ADMM usually identifies the active set long before it meets tight tolerances; this is
+typical when soft constraints are violated (their multipliers sit at the penalty
+:math:`\rho` and the QP behaves like a degenerate LP).  On the statuses solved
+inaccurate, primal infeasible and maximum iterations the cascade
+(:meth:`_RecoveryMixin._rescue`) runs:
+
+1. OSQP continued from the last iterate with tolerance :math:`\max(10^{-4}, 10\epsilon)`
+   and OSQP's polishing;
+2. failing that, an exact primal-dual active-set iteration (semismooth Newton) on the
+   condensed QP with the slacks eliminated, accepted only when every KKT condition of
+   the full QP holds (:meth:`_RecoveryMixin._refine`);
+3. failing that, the fallback (:meth:`_RecoveryMixin._fallback`): the previous plan
+   shifted by one stage (or the held input), clipped stage by stage to the box and
+   rate window; its prediction, soft violation and cost come from the condensed model
+   (:meth:`_RecoveryMixin._evaluate_plan`).
+
+A verified KKT point is reported as ``"solved (polished)"`` (status 1), a relaxed
+unpolished solution as ``"solved inaccurate"`` (status 2).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from train_envs.mpc.osqp_backend import _BIG, _RESCUE, _SOLVED, _SOLVED_INACCURATE, _Stats
+from train_envs.mpc.solution import MPCSolution
+
+
+class _RecoveryMixin:
+    """Rescue, exact refinement, fallback plan and its evaluation."""
+
+    def _rescue(self, x: np.ndarray, y: np.ndarray, stats: _Stats) -> tuple[Any, Any, _Stats]:
+        """Recover from a solve that did not meet the tolerances.
+
+        ADMM usually identifies the active set long before it meets tight
+        tolerances; this is typical when soft constraints are violated, because
+        their multipliers then sit at the large penalty ``rho`` and the QP behaves
+        like a degenerate LP.  Cascade:
+
+        1. OSQP continued from the last iterate with a relaxed tolerance
+           (``max(1e-4, 10 eps)``) and OSQP's own solution polishing;
+        2. if polishing failed: an exact active-set iteration (:meth:`_refine`).
+
+        A verified KKT point is reported as ``"solved (polished)"`` (status 1); an
+        unpolished relaxed-tolerance solution as ``"solved inaccurate"`` (status 2).
+        """
+        status_val, status, iters, solve_time = stats[0], stats[1], stats[2], stats[3]
+        if status_val not in _RESCUE or x is None or not math.isfinite(np.dot(x, x)):
+            return x, y, stats
+        t0 = time.perf_counter()
+        st = self.osqp_settings
+        eps = max(1e-4, 10.0 * float(st["eps_abs"]), 10.0 * float(st["eps_rel"]))
+        restore = {k: st[k] for k in ("eps_abs", "eps_rel", "polishing")}
+        x2, y2, s2 = self._backend.rescue(x, y, eps, True, restore)
+        it = iters + s2[2]
+        if s2[0] == _SOLVED and s2[5] == 1:
+            t = solve_time + time.perf_counter() - t0
+            return x2, y2, (_SOLVED, "solved (polished)", it, t, s2[4], 1)
+        ok2 = x2 is not None and math.isfinite(np.dot(x2, x2))
+        ref = self._refine(x2, y2) if ok2 else self._refine(x, y)
+        t = solve_time + time.perf_counter() - t0
+        if ref is not None:
+            return ref[0], ref[1], (_SOLVED, "solved (polished)", it, t, ref[2], 1)
+        if ok2 and s2[0] == _SOLVED:
+            return x2, y2, (_SOLVED_INACCURATE, "solved inaccurate", it, t, s2[4], s2[5])
+        return x, y, (status_val, status, it, t, stats[4], stats[5])
+
+    def _refine(
+        self, x: np.ndarray, y: np.ndarray, max_iter: int = 20
+    ) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """Exact solution by a primal-dual active-set iteration started from ``(x, y)``.
+
+        Slacks are eliminated: each soft constraint ``k`` (row ``g_k``, bounds
+        ``L_k <= g_k z <= U_k``) is *free* (``eps_k = 0``, bounds inactive), *bound*
+        (``eps_k = 0``, ``g_k z`` on a bound, multiplier in ``[0, rho_k]``) or
+        *violated* (``eps_k = g_k z - U_k > 0`` or ``L_k - g_k z > 0``, whose penalty
+        ``rho_k eps_k + gamma eps_k^2`` enters the cost).  Each iteration solves the
+        equality-constrained QP in ``z`` of the current active set (dense KKT
+        system) and updates the set with the complementarity rules of the
+        primal-dual active-set method (semismooth Newton); the result is accepted
+        only if every KKT condition of the full QP holds.  Returns ``(w, y, obj)``
+        in OSQP's variables or ``None``.
+        """
+        nz, ns, r0 = self._nz, self._ns, self._row_input
+        nh, nlu = (
+            self._row_soft - r0,
+            self._n_bound_row - r0,
+        )  # semantic row counts (no dynamics rows)
+        th = self._theta
+        c_sem = self._Csem @ th  # condensed offsets of the semantic rows
+        lb = np.clip(self._lower_call[r0:] - c_sem, -_BIG, _BIG)
+        ub = np.clip(self._upper_call[r0:] - c_sem, -_BIG, _BIG)
+        ys = y[r0:]  # duals of the semantic rows (and of the eps >= 0 rows)
+        Gsem = self._Gsem
+        Gh = Gsem[:nh]
+        lo_h, hi_h = lb[:nh], ub[:nh]
+        Gs = Gsem[nh : nh + ns]
+        jl = self._soft2_slack
+        U_s = ub[nh : nh + ns]
+        L_s = np.full(ns, -_BIG)
+        L_s[jl] = lb[nh + ns : nlu]
+        rho = self._rho_s
+        g2 = 2.0 * self._gamma_s
+        H2 = 2.0 * self._H
+        q = self._Fq @ th
+        eq_h = (hi_h - lo_h) <= 1e-12 * (1.0 + np.abs(hi_h))
+
+        # initial active set from the ADMM iterate (OSQP's polishing rule)
+        z = x[self._col_input : self._col_slack]
+        ah = Gh @ z
+        yh = ys[:nh]
+        st_h = np.where((hi_h - ah) < yh, 1, np.where((ah - lo_h) < -yh, -1, 0))
+        st_h[eq_h] = 1
+        st_s = np.zeros(ns, dtype=np.int64)
+        if ns:
+            eps = x[self._col_slack :]
+            ysu = ys[nh : nh + ns]
+            ysl = np.zeros(ns)
+            ysl[jl] = ys[nh + ns : nlu]
+            gs = Gs @ z
+            zero = eps < -ys[nlu:]
+            st_s = np.where(ysu >= -ysl, 1, -1)
+            st_s = np.where(
+                zero, np.where(ysu >= -ysl, (U_s - gs) < ysu, (gs - L_s) < -ysl) * st_s, 2 * st_s
+            )
+        for _ in range(max_iter):
+            # ---- KKT system of the current active set -----------------------------
+            Hr = H2
+            f = q
+            vu, vl = st_s == 2, st_s == -2
+            if vu.any() or vl.any():
+                Gv = Gs[vu | vl]
+                Hr = H2 + (Gv.T * g2[vu | vl]) @ Gv
+                coef = np.where(st_s == 2, rho - g2 * U_s, -rho - g2 * L_s)[vu | vl]
+                f = q + Gv.T @ coef
+            ah_idx = np.flatnonzero(st_h != 0)
+            bs_idx = np.flatnonzero(np.abs(st_s) == 1)
+            E = np.vstack([Gh[ah_idx], Gs[bs_idx]])
+            e = np.concatenate(
+                [
+                    np.where(st_h[ah_idx] > 0, hi_h[ah_idx], lo_h[ah_idx]),
+                    np.where(st_s[bs_idx] > 0, U_s[bs_idx], L_s[bs_idx]),
+                ]
+            )
+            ne = e.size
+            K = np.zeros((nz + ne, nz + ne))
+            K[:nz, :nz] = Hr
+            K[:nz, nz:] = E.T
+            K[nz:, :nz] = E
+            rhs = np.concatenate([-f, e])
+            try:
+                sol = np.linalg.solve(K, rhs)
+            except np.linalg.LinAlgError:
+                sol = np.linalg.lstsq(K, rhs, rcond=None)[0]
+            if not np.all(np.isfinite(sol)):
+                return None
+            z = sol[:nz]
+            lam_h = np.zeros(nh)
+            lam_h[ah_idx] = sol[nz : nz + ah_idx.size]
+            ah = Gh @ z
+            gs = Gs @ z
+            v_u = gs - U_s
+            v_l = L_s - gs
+            mu = np.zeros(ns)  # signed multiplier of soft constraint k (upper > 0)
+            mu[bs_idx] = sol[nz + ah_idx.size :]
+            mu = np.where(st_s == 2, rho + g2 * v_u, np.where(st_s == -2, -(rho + g2 * v_l), mu))
+            # ---- complementarity update (c = 1) -----------------------------------
+            new_h = np.where(lam_h + (ah - hi_h) > 0, 1, np.where(lam_h + (ah - lo_h) < 0, -1, 0))
+            new_h[eq_h] = 1
+            t_u = np.maximum(mu, 0.0) + v_u
+            t_l = np.maximum(-mu, 0.0) + v_l
+            new_s = np.where(
+                t_u >= t_l,
+                np.where(t_u > rho, 2, np.where(t_u > 0, 1, 0)),
+                np.where(t_l > rho, -2, np.where(t_l > 0, -1, 0)),
+            )
+            if np.array_equal(new_h, st_h) and np.array_equal(new_s, st_s):
+                break
+            st_h, st_s = new_h, new_s
+        else:
+            return None
+
+        # ---- verify the KKT conditions of the full QP ---------------------------------
+        scale = 1.0 + float(np.max(np.abs(rhs), initial=0.0))
+        if np.max(np.abs(K @ sol - rhs), initial=0.0) > 1e-8 * scale:
+            return None  # inconsistent (singular) active set
+        tol_p = 1e-9 * (
+            1.0 + float(np.max(np.abs(e), initial=0.0)) + float(np.abs(ah).max(initial=0))
+        )
+        tol_d = 1e-9 * (
+            1.0 + float(np.max(np.abs(sol[nz:]), initial=0.0)) + float(rho.max(initial=0))
+        )
+        if np.any(ah > hi_h + tol_p) or np.any(ah < lo_h - tol_p):
+            return None
+        act = (st_h != 0) & ~eq_h
+        if np.any(lam_h[act] * st_h[act] < -tol_d):
+            return None
+        if ns:
+            free = st_s == 0
+            if np.any(v_u[free] > tol_p) or np.any(v_l[free] > tol_p):
+                return None
+            bound = np.abs(st_s) == 1
+            if np.any(mu[bound] * st_s[bound] < -tol_d) or np.any(
+                np.abs(mu[bound]) > rho[bound] + tol_d
+            ):
+                return None
+            if np.any(v_u[st_s == 2] < -tol_p) or np.any(v_l[st_s == -2] < -tol_p):
+                return None
+        eps_r = np.where(st_s == 2, v_u, np.where(st_s == -2, v_l, 0.0)).clip(min=0.0)
+        parts = [z, eps_r]
+        if self._sparse:
+            parts.insert(0, self._Xth @ th + self._Sx @ z)
+        w = np.concatenate(parts)
+        # OSQP-convention duals, useful as the next warm start
+        yw = np.array(y, dtype=float)
+        yw[r0 : r0 + nh] = lam_h
+        if ns:
+            yw[r0 + nh : r0 + nh + ns] = np.maximum(mu, 0.0)
+            yw[r0 + nh + ns : r0 + nlu] = np.minimum(mu, 0.0)[jl]
+            yw[r0 + nlu :] = -rho - g2 * eps_r + np.maximum(mu, 0.0) - np.minimum(mu, 0.0)
+        # OSQP objective 1/2 w'Pw + q'w (P stored as its upper triangle)
+        Pd = self._P_dense
+        qv = self._v[self._v_q]
+        obj = float(w @ (Pd @ w) - 0.5 * (np.diagonal(Pd) * w) @ w + qv @ w)
+        return w, yw, obj
+
+    def _fallback(
+        self,
+        t_start: float,
+        status: str,
+        status_val: int,
+        up: np.ndarray,
+        iters: int = 0,
+        solve_time: float = 0.0,
+    ) -> MPCSolution:
+        """Safe command: shifted previous plan (or held input), clipped to all input bounds."""
+        m, Nc = self.m, self.Nc
+        up = np.array(up, dtype=float)
+        if not np.all(np.isfinite(up)):
+            up = (
+                self._u_last.copy()
+                if self._u_last is not None and np.all(np.isfinite(self._u_last))
+                else np.where(np.isfinite(up), up, 0.0)
+            )
+            rate_ok = False
+        else:
+            rate_ok = True
+        self._plan_age += 1
+        if self._plan is not None:
+            idx = np.minimum(np.arange(Nc) + self._plan_age, Nc - 1)
+            cand = self._plan[idx]
+        else:
+            cand = np.tile(up, (Nc, 1))
+        U = np.empty((Nc, m))
+        prev = up
+        for i in range(Nc):
+            lo, hi = self._umin, self._umax
+            if rate_ok or i > 0:
+                lo, hi = self._input_window(prev)
+            ui = np.clip(cand[i], lo, hi)
+            ui = np.where(np.isfinite(ui), ui, np.clip(0.0, lo, hi))
+            U[i] = ui
+            prev = ui
+        u0 = U[0].copy()
+        # prediction with the fallback plan (NaN if the data were not finite)
+        if self._z_is_du:
+            z = np.diff(np.vstack([up[None, :], U]), axis=0).ravel()
+        else:
+            z = U.ravel()
+        self._theta[self._slots["up"]] = up
+        X, Y, slack_max, cost = self._evaluate_plan(z)
+        # next warm start: shift the previous one again (never reuse a failed iterate)
+        ws_x, ws_y = self._warm_start()
+        if ws_x is not None:
+            xb = self._xbuf
+            xb[: self._n_var] = ws_x
+            self._ws_x = xb[self._xshift]
+            self._ws_y = ws_y[self._yshift]
+        self._u_last = u0
+        return MPCSolution(
+            u0=u0,
+            du0=u0 - up,
+            U=U,
+            X=X,
+            Y=Y,
+            status=status,
+            status_val=status_val,
+            iterations=iters,
+            solve_time_s=solve_time,
+            overhead_s=time.perf_counter() - t_start - solve_time,
+            slack_max=slack_max,
+            fallback=True,
+            cost=cost,
+        )
+
+    def _evaluate_plan(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Prediction, soft violation and cost of a plan ``z`` from the condensed model.
+
+        Used for fallback plans; NaN where the data of this call were not finite.
+        """
+        th = self._theta
+        ns, r0 = self._ns, self._row_input
+        nh, nlu = self._row_soft - r0, self._n_bound_row - r0
+        with np.errstate(invalid="ignore", over="ignore"):
+            X = (self._Xth @ th + self._Sx @ z).reshape(self.Np, self.n)
+            Y = X if self._y_is_x else X @ self._C.T
+            g = self._Gsem @ z + self._Csem @ th
+            eps = np.zeros(ns)
+            if ns:
+                eps = np.maximum(eps, g[nh : nh + ns] - self._upper_call[r0 + nh : r0 + nh + ns])
+                np.maximum.at(
+                    eps, self._soft2_slack, self._lower_call[r0 + nh + ns :] - g[nh + ns : nlu]
+                )
+            Lc = self._Lth_c @ th
+            cost = float(
+                z @ self._H @ z
+                + (self._Fq @ th) @ z
+                + Lc @ Lc
+                + self._rho_s @ eps
+                + self._gamma_s @ eps**2
+            )
+            slack_max = float(eps.max()) if ns else 0.0
+        if not math.isfinite(cost):
+            cost = float("nan")
+        return X, Y, slack_max, cost
