@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from train_envs.controllers.train_mpc import zoh
+from train_envs.mpc.design import zoh
 from train_envs.trains import G
 
 __all__ = [

@@ -41,8 +41,17 @@ import numpy as np
 
 from train_envs.controllers._common import distribute, input_shares, per_car_davis
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
+from train_envs.controllers.models import (
+    coupled_cars_continuous,
+    dead_time_maps,
+    discretise,
+    gradient_accel,
+    point_lag_continuous,
+    resistance_offset_accel,
+)
 from train_envs.mpc import LinearMPC, augmented_terminal_cost, dare_doubling, zoh
 from train_envs.plants.lookup import gradient_table
+from train_envs.plants.physics import davis_horner_N, davis_slope
 from train_envs.trains import G
 
 __all__ = [
@@ -176,34 +185,19 @@ class PointMassMPC(_TrainMPCBase):
     def _continuous(self, v_lin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         tr = self.ctx.train
         mi = tr.inertial_mass_kg
-        kv = (tr.davis_b_Ns_per_m + 2.0 * tr.davis_c_Ns2_per_m2 * max(v_lin, 0.0)) / mi
+        kv = davis_slope(tr.davis_b_Ns_per_m, tr.davis_c_Ns2_per_m2, max(v_lin, 0.0)) / mi
         if self.feedforward == "none":
             kv = 0.0
-        if self._lag:
-            tau = self.ctx.actuator_tau_s
-            Ac = np.array([[0.0, 1.0, 0.0], [0.0, -kv, 1.0], [0.0, 0.0, -1.0 / tau]])
-            Bc = np.array([[0.0], [0.0], [1.0 / tau]])
-            Ec = np.array([[0.0], [1.0], [0.0]])
-        else:
-            Ac = np.array([[0.0, 1.0], [0.0, -kv]])
-            Bc = np.array([[0.0], [1.0]])
-            Ec = np.array([[0.0], [1.0]])
-        return Ac, Bc, Ec
+        return point_lag_continuous(kv, self.ctx.actuator_tau_s if self._lag else 0.0)
 
     def _discretise(self, v_lin: float) -> None:
-        Ac, Bc, Ec = self._continuous(v_lin)
-        Ad, BE = zoh(Ac, np.hstack([Bc, Ec]), self.ctx.dt_s)
-        self._Ad, self._Bd, self._Ed = Ad, BE[:, :1], BE[:, 1]
+        Ad, Bd, Ed = discretise(*self._continuous(v_lin), self.ctx.dt_s)
+        self._Ad, self._Bd, self._Ed = Ad, Bd, Ed[:, 0]
         self._v_lin = v_lin
         # dead-time prediction in one shot (001 eq. 10): x(k+l) = A^l x + B_l u_pend + E_l w
         nd = getattr(self, "_l", 0)
         if nd:
-            powers = [np.eye(Ad.shape[0])]
-            for _ in range(nd):
-                powers.append(Ad @ powers[-1])
-            self._Al = powers[nd]
-            self._Bl = np.column_stack([powers[nd - 1 - j] @ self._Bd[:, 0] for j in range(nd)])
-            self._El = np.column_stack([powers[nd - 1 - j] @ self._Ed for j in range(nd)])
+            self._Al, self._Bl, self._El = dead_time_maps(Ad, Bd[:, 0], Ed[:, 0], nd)
 
     def _weights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         p = self._params
@@ -305,14 +299,14 @@ class PointMassMPC(_TrainMPCBase):
         if self._ff_full:
             tr = self.ctx.train
             a, c, mi = tr.davis_a_N, tr.davis_c_Ns2_per_m2, self._mi
-            bs = tr.davis_b_Ns_per_m - (tr.davis_b_Ns_per_m + 2.0 * c * self._v_lin)
+            bs = tr.davis_b_Ns_per_m - davis_slope(tr.davis_b_Ns_per_m, c, self._v_lin)
             if grad is not None:
                 w = [
-                    w_hat - (a * (v > 0.0) + (bs + c * v) * v) / mi - kg * grad(s)
+                    w_hat - davis_horner_N(a * (v > 0.0), bs, c, v) / mi - kg * grad(s)
                     for s, v in zip(s_r, v_r, strict=True)
                 ]
             else:
-                w = [w_hat - (a * (v > 0.0) + (bs + c * v) * v) / mi for v in v_r]
+                w = [w_hat - davis_horner_N(a * (v > 0.0), bs, c, v) / mi for v in v_r]
         elif grad is not None:
             w = [w_hat - kg * grad(s) for s in s_r]
         else:
@@ -460,31 +454,14 @@ class MultiCarMPC(_TrainMPCBase):
     def _discretise(self, v_lin: float) -> None:
         ctx, n = self.ctx, self._n
         tr = ctx.train
-        m = self._m
-        mi = self._mi
         k, d = tr.coupler.stiffness_N_per_m, tr.coupler.damping_Ns_per_m
-        Kc = np.zeros((n, n))
-        for j in range(n - 1):
-            Kc[j, j] -= 1.0
-            Kc[j, j + 1] += 1.0
-            Kc[j + 1, j] += 1.0
-            Kc[j + 1, j + 1] -= 1.0
-        slope = self._cb + 2.0 * self._cc * max(v_lin, 0.0)
+        slope = davis_slope(self._cb, self._cc, max(v_lin, 0.0))
         if self.feedforward == "none":
             slope = np.zeros(n)
-        Ac = np.zeros((2 * n, 2 * n))
-        Ac[:n, n:] = np.eye(n)
-        Ac[n:, :n] = k * Kc / mi[:, None]
-        Ac[n:, n:] = d * Kc / mi[:, None] - np.diag(slope / mi)
-        Bc = np.zeros((2 * n, n))
-        Bc[n:, :] = np.diag(1000.0 / mi)
-        Ec = np.zeros((2 * n, n))
-        Ec[n:, :] = np.eye(n)
-        Ad, BE = zoh(Ac, np.hstack([Bc, Ec]), ctx.dt_s)
-        self._Ad, self._Bd, self._Ed = Ad, BE[:, :n], BE[:, n:]
+        Ac, Bc, Ec = coupled_cars_continuous(k, d, self._mi, slope)
+        self._Ad, self._Bd, self._Ed = discretise(Ac, Bc, Ec, ctx.dt_s)
         self._v_lin = v_lin
         self._slope = slope
-        del m
 
     def _weights(self):
         p, n = self._params, self._n
@@ -550,16 +527,12 @@ class MultiCarMPC(_TrainMPCBase):
 
     def _affine(self, s_r: np.ndarray, v_r: np.ndarray) -> np.ndarray:
         """Per-stage, per-car affine accelerations w (Np, n)."""
-        tr = self.ctx.train
-        vr = np.maximum(v_r, 0.0)[:, None]
-        w = np.full((vr.shape[0], self._n), self._w_hat)
+        w = np.full((v_r.shape[0], self._n), self._w_hat)
         if self.feedforward == "full":
-            R = self._ca * (vr > 0) + self._cb * vr + self._cc * vr * vr
-            w -= (R - self._slope * vr) / self._mi
+            w -= resistance_offset_accel(self._ca, self._cb, self._cc, self._slope, self._mi, v_r)
         if self.feedforward in ("full", "gradient") and self.ctx.track is not None:
             theta = gradient_table(self.ctx.track)(s_r)[:, None]
-            w -= self._m * G * theta / 1000.0 / self._mi
-        del tr
+            w -= gradient_accel(self._m, self._mi, theta)
         return w
 
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
