@@ -12,11 +12,20 @@ solve time, reported separately), the plant step, the closed-loop runner around 
 ``simulate`` pays too) and the env's own overhead (action mapping, observation
 features, reward, info) = the rest. One untimed warm-up episode runs first (QP
 construction on first use is a one-off cost).
+
+``--compare OLD NEW [--rounds 5]`` runs the benchmark on two source trees (each a
+directory holding ``train_envs``) in subprocesses, alternating the order every round,
+and prints the median env steps/s of each and their ratio NEW/OLD per id.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
 import time
 
 import gymnasium as gym
@@ -103,22 +112,62 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
     }
 
 
+def compare(old: str, new: str, ids: list[str] | None, episodes: int, noise: float, rounds: int):
+    """Median env steps/s of two source trees, measured in alternating subprocesses."""
+    trees = {"old": os.path.abspath(old), "new": os.path.abspath(new)}
+    rates: dict[str, dict[str, list[float]]] = {"old": {}, "new": {}}
+    args = ["--json", "--episodes", str(episodes), "--noise", str(noise)]
+    if ids:
+        args += ["--ids", *ids]
+    for r in range(rounds):
+        for which in ("old", "new") if r % 2 == 0 else ("new", "old"):
+            env = dict(os.environ, PYTHONPATH=trees[which])
+            out = subprocess.run(
+                [sys.executable, os.path.abspath(__file__), *args],
+                env=env,
+                capture_output=True,
+                text=True,
+                check=True,
+                cwd=trees[which],
+            ).stdout
+            for row in json.loads(out.strip().splitlines()[-1]):
+                rates[which].setdefault(row["env"], []).append(row["env_steps_per_s"])
+    print(f"| env id | old steps/s | new steps/s | new/old (median of {rounds} rounds) |")
+    print("|---|---:|---:|---:|")
+    for env_id, old_rates in rates["old"].items():
+        new_rates = rates["new"][env_id]
+        ratios = [b / a for a, b in zip(old_rates, new_rates, strict=True)]
+        print(
+            f"| {env_id} | {statistics.median(old_rates):.0f} | "
+            f"{statistics.median(new_rates):.0f} | {statistics.median(ratios):.3f} |"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--episodes", type=int, default=2)
     ap.add_argument("--ids", nargs="*", default=None)
     ap.add_argument("--noise", type=float, default=0.0, help="action noise std (RL-like)")
+    ap.add_argument("--json", action="store_true", help="print the rows as one JSON line")
+    ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="two source trees")
+    ap.add_argument("--rounds", type=int, default=5, help="--compare: alternating rounds")
     args = ap.parse_args()
+    if args.compare:
+        compare(*args.compare, args.ids, args.episodes, args.noise, args.rounds)
+        return
     ids = args.ids or registered_ids()
+    rows = [bench(env_id, args.episodes, args.noise) for env_id in ids]
+    if args.json:
+        print(json.dumps(rows))
+        return
     print(
         "| env id | env steps/s | real-time factor | controller | of which OSQP | plant "
         "| runner | env overhead |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
-    for env_id in ids:
-        r = bench(env_id, args.episodes, args.noise)
+    for r in rows:
         print(
-            f"| {env_id} | {r['env_steps_per_s']:.0f} | {r['real_time_factor']:.0f} | "
+            f"| {r['env']} | {r['env_steps_per_s']:.0f} | {r['real_time_factor']:.0f} | "
             f"{100 * r['controller_share']:.0f} % | {100 * r['osqp_share']:.0f} % | "
             f"{100 * r['plant_share']:.0f} % | {100 * r['runner_share']:.0f} % | "
             f"{100 * r['env_overhead_share']:.0f} % |"
