@@ -16,6 +16,8 @@ construction on first use is a one-off cost).
 ``--compare OLD NEW [--rounds 5]`` runs the benchmark on two source trees (each a
 directory holding ``train_envs``) in subprocesses, alternating the order every round,
 and prints the median env steps/s of each and their ratio NEW/OLD per id.
+``--cpu-time`` measures with the process's CPU time instead of the wall clock (stabler
+on a shared machine; the real-time factor is then per CPU second).
 """
 
 from __future__ import annotations
@@ -34,6 +36,9 @@ import numpy as np
 import train_envs  # noqa: F401
 from train_envs.envs import params_to_action, registered_ids
 
+#: the clock of every measurement (``--cpu-time``: this process's CPU time)
+_clock = time.perf_counter
+
 
 def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
     env = gym.make(env_id)
@@ -44,9 +49,9 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
 
     def timed_compute(obs):
         nonlocal ctrl_time, solve_time
-        t0 = time.perf_counter()
+        t0 = _clock()
         out = orig_compute(obs)
-        ctrl_time += time.perf_counter() - t0
+        ctrl_time += _clock() - t0
         solve_time += float(out[1].get("solve_time_s", 0.0))
         return out
 
@@ -64,9 +69,9 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
 
     def timed_loop_step(*args, **kw):
         nonlocal loop_time
-        t0 = time.perf_counter()
+        t0 = _clock()
         out = orig_loop_step(*args, **kw)
-        loop_time += time.perf_counter() - t0
+        loop_time += _clock() - t0
         return out
 
     loop.step = timed_loop_step
@@ -81,13 +86,13 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
 
         def timed_step(u, d, _orig=orig_step):
             nonlocal plant_time
-            t0 = time.perf_counter()
+            t0 = _clock()
             _orig(u, d)
-            plant_time += time.perf_counter() - t0
+            plant_time += _clock() - t0
 
         plant.step = timed_step
         action = params_to_action(env, {})
-        t0 = time.perf_counter()
+        t0 = _clock()
         done = False
         while not done:
             a = action
@@ -97,7 +102,7 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
             _, _, term, trunc, _ = env.step(a)
             steps += 1
             done = term or trunc
-        wall += time.perf_counter() - t0
+        wall += _clock() - t0
         sim_s += plant.t
     env.close()
     return {
@@ -112,11 +117,21 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
     }
 
 
-def compare(old: str, new: str, ids: list[str] | None, episodes: int, noise: float, rounds: int):
+def compare(
+    old: str,
+    new: str,
+    ids: list[str] | None,
+    episodes: int,
+    noise: float,
+    rounds: int,
+    cpu_time: bool = False,
+) -> None:
     """Median env steps/s of two source trees, measured in alternating subprocesses."""
     trees = {"old": os.path.abspath(old), "new": os.path.abspath(new)}
     rates: dict[str, dict[str, list[float]]] = {"old": {}, "new": {}}
     args = ["--json", "--episodes", str(episodes), "--noise", str(noise)]
+    if cpu_time:
+        args.append("--cpu-time")
     if ids:
         args += ["--ids", *ids]
     for r in range(rounds):
@@ -132,6 +147,9 @@ def compare(old: str, new: str, ids: list[str] | None, episodes: int, noise: flo
             ).stdout
             for row in json.loads(out.strip().splitlines()[-1]):
                 rates[which].setdefault(row["env"], []).append(row["env_steps_per_s"])
+                print(
+                    f"round {r} {which} {row['env']} {row['env_steps_per_s']:.0f}", file=sys.stderr
+                )
     print(f"| env id | old steps/s | new steps/s | new/old (median of {rounds} rounds) |")
     print("|---|---:|---:|---:|")
     for env_id, old_rates in rates["old"].items():
@@ -151,9 +169,13 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print the rows as one JSON line")
     ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="two source trees")
     ap.add_argument("--rounds", type=int, default=5, help="--compare: alternating rounds")
+    ap.add_argument("--cpu-time", action="store_true", help="measure process CPU time")
     args = ap.parse_args()
+    if args.cpu_time:
+        global _clock
+        _clock = time.process_time
     if args.compare:
-        compare(*args.compare, args.ids, args.episodes, args.noise, args.rounds)
+        compare(*args.compare, args.ids, args.episodes, args.noise, args.rounds, args.cpu_time)
         return
     ids = args.ids or registered_ids()
     rows = [bench(env_id, args.episodes, args.noise) for env_id in ids]

@@ -75,15 +75,9 @@ def _name(section: str, name: str) -> str:
 
 def _integer(section: str, name: str, value: Any, low: int) -> int:
     ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
-    if ok and isinstance(value, numbers.Integral):
-        x = int(value)
-    elif ok and math.isfinite(value) and float(value).is_integer():
-        x = int(value)
-    else:
+    if not (ok and math.isfinite(value) and float(value).is_integer() and value >= low):
         raise ValueError(f"{_name(section, name)} must be an integer >= {low}, got {value!r}")
-    if x < low:
-        raise ValueError(f"{_name(section, name)} must be an integer >= {low}, got {value!r}")
-    return x
+    return int(value)
 
 
 def _real(section: str, name: str, value: Any, low: float, strict: bool) -> float:
