@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -114,6 +115,7 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
         "plant_share": plant_time / wall,
         "runner_share": max(0.0, loop_time - ctrl_time - plant_time) / wall,
         "env_overhead_share": max(0.0, 1.0 - loop_time / wall),
+        "env_overhead_us_per_step": max(0.0, wall - loop_time) / steps * 1e6,
     }
 
 
@@ -129,6 +131,7 @@ def compare(
     """Median env steps/s of two source trees, measured in alternating subprocesses."""
     trees = {"old": os.path.abspath(old), "new": os.path.abspath(new)}
     rates: dict[str, dict[str, list[float]]] = {"old": {}, "new": {}}
+    overhead: dict[str, dict[str, list[float]]] = {"old": {}, "new": {}}
     args = ["--json", "--episodes", str(episodes), "--noise", str(noise)]
     if cpu_time:
         args.append("--cpu-time")
@@ -147,17 +150,27 @@ def compare(
             ).stdout
             for row in json.loads(out.strip().splitlines()[-1]):
                 rates[which].setdefault(row["env"], []).append(row["env_steps_per_s"])
+                us = row["env_overhead_us_per_step"]
+                overhead[which].setdefault(row["env"], []).append(us)
                 print(
                     f"round {r} {which} {row['env']} {row['env_steps_per_s']:.0f}", file=sys.stderr
                 )
-    print(f"| env id | old steps/s | new steps/s | new/old (median of {rounds} rounds) |")
-    print("|---|---:|---:|---:|")
+    # every order occurs equally often over an even number of rounds: the geometric mean
+    # of the per-round ratios cancels a bias of the position in the pair
+    print(
+        f"| env id | old steps/s | new steps/s | new/old median | new/old geo. mean "
+        f"| env overhead old / new [µs/step] |  ({rounds} rounds)"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
     for env_id, old_rates in rates["old"].items():
         new_rates = rates["new"][env_id]
         ratios = [b / a for a, b in zip(old_rates, new_rates, strict=True)]
+        geo = math.exp(statistics.fmean(math.log(x) for x in ratios))
         print(
             f"| {env_id} | {statistics.median(old_rates):.0f} | "
-            f"{statistics.median(new_rates):.0f} | {statistics.median(ratios):.3f} |"
+            f"{statistics.median(new_rates):.0f} | {statistics.median(ratios):.3f} | "
+            f"{geo:.3f} | {statistics.median(overhead['old'][env_id]):.0f} / "
+            f"{statistics.median(overhead['new'][env_id]):.0f} |"
         )
 
 
