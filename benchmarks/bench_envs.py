@@ -12,11 +12,23 @@ solve time, reported separately), the plant step, the closed-loop runner around 
 ``simulate`` pays too) and the env's own overhead (action mapping, observation
 features, reward, info) = the rest. One untimed warm-up episode runs first (QP
 construction on first use is a one-off cost).
+
+``--compare OLD NEW [--rounds 5]`` runs the benchmark on two source trees (each a
+directory holding ``train_envs``) in subprocesses, alternating the order every round,
+and prints the median env steps/s of each and their ratio NEW/OLD per id.
+``--cpu-time`` measures with the process's CPU time instead of the wall clock (stabler
+on a shared machine; the real-time factor is then per CPU second).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
 import time
 
 import gymnasium as gym
@@ -24,6 +36,9 @@ import numpy as np
 
 import train_envs  # noqa: F401
 from train_envs.envs import params_to_action, registered_ids
+
+#: the clock of every measurement (``--cpu-time``: this process's CPU time)
+_clock = time.perf_counter
 
 
 def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
@@ -35,9 +50,9 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
 
     def timed_compute(obs):
         nonlocal ctrl_time, solve_time
-        t0 = time.perf_counter()
+        t0 = _clock()
         out = orig_compute(obs)
-        ctrl_time += time.perf_counter() - t0
+        ctrl_time += _clock() - t0
         solve_time += float(out[1].get("solve_time_s", 0.0))
         return out
 
@@ -55,9 +70,9 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
 
     def timed_loop_step(*args, **kw):
         nonlocal loop_time
-        t0 = time.perf_counter()
+        t0 = _clock()
         out = orig_loop_step(*args, **kw)
-        loop_time += time.perf_counter() - t0
+        loop_time += _clock() - t0
         return out
 
     loop.step = timed_loop_step
@@ -72,13 +87,13 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
 
         def timed_step(u, d, _orig=orig_step):
             nonlocal plant_time
-            t0 = time.perf_counter()
+            t0 = _clock()
             _orig(u, d)
-            plant_time += time.perf_counter() - t0
+            plant_time += _clock() - t0
 
         plant.step = timed_step
         action = params_to_action(env, {})
-        t0 = time.perf_counter()
+        t0 = _clock()
         done = False
         while not done:
             a = action
@@ -88,7 +103,7 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
             _, _, term, trunc, _ = env.step(a)
             steps += 1
             done = term or trunc
-        wall += time.perf_counter() - t0
+        wall += _clock() - t0
         sim_s += plant.t
     env.close()
     return {
@@ -100,7 +115,63 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
         "plant_share": plant_time / wall,
         "runner_share": max(0.0, loop_time - ctrl_time - plant_time) / wall,
         "env_overhead_share": max(0.0, 1.0 - loop_time / wall),
+        "env_overhead_us_per_step": max(0.0, wall - loop_time) / steps * 1e6,
     }
+
+
+def compare(
+    old: str,
+    new: str,
+    ids: list[str] | None,
+    episodes: int,
+    noise: float,
+    rounds: int,
+    cpu_time: bool = False,
+) -> None:
+    """Median env steps/s of two source trees, measured in alternating subprocesses."""
+    trees = {"old": os.path.abspath(old), "new": os.path.abspath(new)}
+    rates: dict[str, dict[str, list[float]]] = {"old": {}, "new": {}}
+    overhead: dict[str, dict[str, list[float]]] = {"old": {}, "new": {}}
+    args = ["--json", "--episodes", str(episodes), "--noise", str(noise)]
+    if cpu_time:
+        args.append("--cpu-time")
+    if ids:
+        args += ["--ids", *ids]
+    for r in range(rounds):
+        for which in ("old", "new") if r % 2 == 0 else ("new", "old"):
+            env = dict(os.environ, PYTHONPATH=trees[which])
+            out = subprocess.run(
+                [sys.executable, os.path.abspath(__file__), *args],
+                env=env,
+                capture_output=True,
+                text=True,
+                check=True,
+                cwd=trees[which],
+            ).stdout
+            for row in json.loads(out.strip().splitlines()[-1]):
+                rates[which].setdefault(row["env"], []).append(row["env_steps_per_s"])
+                us = row["env_overhead_us_per_step"]
+                overhead[which].setdefault(row["env"], []).append(us)
+                print(
+                    f"round {r} {which} {row['env']} {row['env_steps_per_s']:.0f}", file=sys.stderr
+                )
+    # every order occurs equally often over an even number of rounds: the geometric mean
+    # of the per-round ratios cancels a bias of the position in the pair
+    print(
+        f"| env id | old steps/s | new steps/s | new/old median | new/old geo. mean "
+        f"| env overhead old / new [µs/step] |  ({rounds} rounds)"
+    )
+    print("|---|---:|---:|---:|---:|---:|")
+    for env_id, old_rates in rates["old"].items():
+        new_rates = rates["new"][env_id]
+        ratios = [b / a for a, b in zip(old_rates, new_rates, strict=True)]
+        geo = math.exp(statistics.fmean(math.log(x) for x in ratios))
+        print(
+            f"| {env_id} | {statistics.median(old_rates):.0f} | "
+            f"{statistics.median(new_rates):.0f} | {statistics.median(ratios):.3f} | "
+            f"{geo:.3f} | {statistics.median(overhead['old'][env_id]):.0f} / "
+            f"{statistics.median(overhead['new'][env_id]):.0f} |"
+        )
 
 
 def main() -> None:
@@ -108,17 +179,30 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=2)
     ap.add_argument("--ids", nargs="*", default=None)
     ap.add_argument("--noise", type=float, default=0.0, help="action noise std (RL-like)")
+    ap.add_argument("--json", action="store_true", help="print the rows as one JSON line")
+    ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="two source trees")
+    ap.add_argument("--rounds", type=int, default=5, help="--compare: alternating rounds")
+    ap.add_argument("--cpu-time", action="store_true", help="measure process CPU time")
     args = ap.parse_args()
+    if args.cpu_time:
+        global _clock
+        _clock = time.process_time
+    if args.compare:
+        compare(*args.compare, args.ids, args.episodes, args.noise, args.rounds, args.cpu_time)
+        return
     ids = args.ids or registered_ids()
+    rows = [bench(env_id, args.episodes, args.noise) for env_id in ids]
+    if args.json:
+        print(json.dumps(rows))
+        return
     print(
         "| env id | env steps/s | real-time factor | controller | of which OSQP | plant "
         "| runner | env overhead |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
-    for env_id in ids:
-        r = bench(env_id, args.episodes, args.noise)
+    for r in rows:
         print(
-            f"| {env_id} | {r['env_steps_per_s']:.0f} | {r['real_time_factor']:.0f} | "
+            f"| {r['env']} | {r['env_steps_per_s']:.0f} | {r['real_time_factor']:.0f} | "
             f"{100 * r['controller_share']:.0f} % | {100 * r['osqp_share']:.0f} % | "
             f"{100 * r['plant_share']:.0f} % | {100 * r['runner_share']:.0f} % | "
             f"{100 * r['env_overhead_share']:.0f} % |"

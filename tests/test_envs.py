@@ -120,6 +120,111 @@ def test_bad_config_names_key_and_allowed():
         gym.make(PID_ID, config={"disturbance": {"windy": 1}})
 
 
+def _first_steps(env, n=8):
+    obs, _ = env.reset(seed=2)
+    out = [obs]
+    for _ in range(n):
+        obs, r, *_ = env.step(np.full(env.action_space.shape, 0.3))
+        out.append(obs)
+        out.append(np.array([r]))
+    return np.concatenate(out)
+
+
+def test_sectioned_and_flat_config_give_the_same_env():
+    flat = {
+        "action_mode": "delta",
+        "delta_scale": 0.2,
+        "decision_interval": 3,
+        "preview_m": 400.0,
+        "preview_points": 2,
+        "reward_weights": {"energy": 1.0},
+        "disturbance": {"random_bound_mps2": 0.02},
+        "max_episode_steps": 30,
+    }
+    sectioned = {
+        "action": {"mode": "delta", "delta_scale": 0.2},
+        "observation": {"preview_m": 400.0, "preview_points": 2},
+        "reward": {"weights": {"energy": 1.0}},
+        "scenario": {"disturbance": {"random_bound_mps2": 0.02}},
+        "episode": {"decision_interval": 3, "max_steps": 30},
+    }
+    mixed = {
+        "action": {"mode": "delta"},
+        "delta_scale": 0.2,
+        **{k: v for k, v in flat.items() if k not in ("action_mode", "delta_scale")},
+    }
+    envs = [gym.make(PID_ID, config=c).unwrapped for c in (flat, sectioned, mixed)]
+    assert envs[0].config == envs[1].config == envs[2].config
+    assert envs[0].settings == envs[1].settings == envs[2].settings
+    # reward weights merge key by key over the defaults
+    assert envs[0].config["reward_weights"] == dict(
+        TrainTuningEnv.default_config()["reward_weights"], energy=1.0
+    )
+    runs = [_first_steps(e) for e in envs]
+    np.testing.assert_array_equal(runs[0], runs[1])
+    np.testing.assert_array_equal(runs[0], runs[2])
+    # a scenario / controller section names them by ``name``
+    env = gym.make(
+        PID_ID, config={"scenario": {"name": "paper004_urban"}, "controller": {"name": "fuzzy_pid"}}
+    ).unwrapped
+    assert env.config["scenario"] == "paper004_urban" and env.config["controller"] == "fuzzy_pid"
+
+
+def test_default_config_and_registered_base_configs():
+    from train_envs.envs import ENV_SPECS, EnvConfig
+
+    cfg = TrainTuningEnv.default_config()
+    assert list(cfg) == [
+        "scenario",
+        "scenario_overrides",
+        "real_line",
+        "controller",
+        "controller_params",
+        "action_params",
+        "action_mode",
+        "delta_scale",
+        "decision_interval",
+        "preview_m",
+        "preview_points",
+        "reward_weights",
+        "disturbance",
+        "max_episode_steps",
+    ]
+    assert EnvConfig.resolve(cfg) == EnvConfig()
+    for base, _doc in ENV_SPECS.values():
+        flat = EnvConfig.resolve(base).flat()
+        assert all(flat[k] == v for k, v in base.items())
+    # the Urban004 id fixes a controller argument; a user's controller_params replace it
+    env = gym.make("TrainEnvs/Urban004-v0", config={"controller_params": {}}).unwrapped
+    assert env.config["controller_params"] == {}
+
+
+@pytest.mark.parametrize(
+    "config, match",
+    [
+        ({"action": {"mod": "delta"}}, r"unknown config key action\.mod; .*delta_scale"),
+        ({"action": "delta"}, r"config action must be a mapping"),
+        ({"reward_weights": {"speed": 1.0}}, r"reward\.weights.*speed.*tracking"),
+        ({"reward": {"weights": {"jerk": -1.0}}}, r"reward\.weights \(reward_weights\).*>= 0"),
+        ({"delta_scale": 0.0}, r"action\.delta_scale \(delta_scale\) .*> 0"),
+        ({"decision_interval": 0}, r"decision_interval.* integer >= 1"),
+        ({"decision_interval": 2.5}, r"decision_interval.* integer >= 1"),
+        ({"preview_points": -1}, r"preview_points.* integer >= 0"),
+        ({"preview_m": float("nan")}, r"preview_m.*finite"),
+        ({"max_episode_steps": 0}, r"max_steps \(max_episode_steps\).* integer >= 1"),
+        ({"action_params": []}, r"action_params.*non-empty"),
+        ({"controller": 3}, r"controller\.name \(controller\).*string"),
+        ({"real_line": {"track": "x"}}, r"real_line.*'train'"),
+        ({"real_line": {"track": "x", "train": "y", "stops": 1}}, r"real_line.*stops"),
+        ({"action_mode": "delta", "action": {"mode": "delta"}}, r"action\.mode twice"),
+    ],
+)
+def test_bad_config_values_name_the_key(config, match):
+    with pytest.raises(ValueError, match=match) as err:
+        gym.make(PID_ID, config=config)
+    assert "\n" not in str(err.value)
+
+
 def test_final_info_has_episode_metrics_and_objectives():
     env = gym.make(PID_ID)
     env.reset(seed=0)
@@ -208,8 +313,9 @@ def test_ppo_smoke(env_id):
 
 
 # ------------------------------------------------- hot path and env reuse (evaluate)
-def _reference_observation(env) -> np.ndarray:
-    """The documented observation, computed the straightforward (vectorised) way."""
+def _reference_observation(env, u_before: float | None = None) -> np.ndarray:
+    """The documented observation, computed the straightforward (vectorised) way;
+    ``u_before``: the total command at the previous observation (None: at reset)."""
     from train_envs.plants.lookup import gradient_table
 
     b = env.unwrapped
@@ -223,7 +329,8 @@ def _reference_observation(env) -> np.ndarray:
     pts = s + np.linspace(0.0, float(b.config["preview_m"]), int(b.config["preview_points"]))
     u = float(np.sum(loop.u_prev))
     u_scale = sc.train.max_traction_force_N
-    du = (u - b._u_before) / (u_scale * sc.dt_ctrl_s * b.config["decision_interval"])
+    u0 = u if u_before is None else u_before
+    du = (u - u0) / (u_scale * sc.dt_ctrl_s * b.config["decision_interval"])
     obs = np.concatenate(
         [
             [
@@ -236,7 +343,7 @@ def _reference_observation(env) -> np.ndarray:
             gradient_table(sc.track)(pts) * (1.0 / 30.0),
             sc.track.speed_limit_at(pts) * (1.0 / v_max),
             [u / u_scale, du],
-            np.asarray(b._prev_action, dtype=float),
+            np.asarray(b.action_type.prev, dtype=float),
             [float(bool(loop.last_info.get("fallback", False)))],
         ]
     )
@@ -254,10 +361,11 @@ def test_observation_and_costs_follow_their_definitions(env_id):
     action[0] = 1.7  # clipped, counted
     k_rows, a_prev, returned, done = [0], b.loop.plant.accel, [], False
     while not done:
+        u_before = b.observation_type.u_last
         obs, r, term, trunc, info = env.step(action)
         returned.append(obs)
-        np.testing.assert_array_equal(obs, _reference_observation(env))
-        assert obs is not b._observe()  # a fresh array every call
+        np.testing.assert_array_equal(obs, _reference_observation(env, u_before))
+        assert obs is not b.observation_type.observe()  # a fresh array every call
         k_rows.append(b.loop.k)
         assert info["action_clipped"] == 1 and info["action_clipped_total"] == len(k_rows) - 1
         # the per-step costs from the runner's rows, as documented
@@ -275,7 +383,7 @@ def test_observation_and_costs_follow_their_definitions(env_id):
         assert c["jerk"] == pytest.approx(float(jerk @ jerk) * dt, rel=1e-12, abs=1e-300)
         sat = rows["saturated"].sum()
         assert c["violation"] == pytest.approx((over.sum() + sat) * dt, rel=1e-12, abs=1e-300)
-        w = b._weights
+        w = b.reward_type.weights
         assert r == pytest.approx(-sum(w[k] * c[k] for k in c), rel=1e-12, abs=1e-300)
         done = term or trunc
     # the arrays handed out earlier were not overwritten by later steps

@@ -1,13 +1,16 @@
 """Gymnasium environments: the inner controller's tuning parameters as the action."""
 
+from train_envs.envs.config import EnvConfig
 from train_envs.envs.evaluation import evaluate, params_to_action
 from train_envs.envs.registration import ENV_SPECS, register_envs, registered_ids
-from train_envs.envs.train_env import OBJECTIVES, TrainTuningEnv
+from train_envs.envs.reward import OBJECTIVES
+from train_envs.envs.train_env import TrainTuningEnv
 from train_envs.envs.wrappers import VectorRewardWrapper
 
 __all__ = [
     "ENV_SPECS",
     "OBJECTIVES",
+    "EnvConfig",
     "TrainTuningEnv",
     "VectorRewardWrapper",
     "evaluate",

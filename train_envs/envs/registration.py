@@ -1,9 +1,9 @@
 """Registered env ids (namespace ``TrainEnvs``), registered idempotently on import.
 
-Each id is ``TrainTuningEnv`` with a scenario and an inner controller; ``gymnasium.make
-(id, config={...})`` overrides any key of :meth:`TrainTuningEnv.default_config`. An id
-is registered only once its controller exists in :data:`train_envs.controllers.
-CONTROLLERS` (the MPC family lands controller by controller).
+Each id is ``TrainTuningEnv`` with a scenario and an inner controller (its base config,
+under the flat keys); ``gymnasium.make(id, config={...})`` overrides any field, in
+sections or by flat key (:mod:`train_envs.envs.config`). An id is registered only once
+its controller exists in :data:`train_envs.controllers.CONTROLLERS`.
 
 In child processes (SubprocVecEnv with the spawn start method, rl-zoo3) use the module
 prefix so the child imports the package and registers the ids itself::

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from train_envs.envs.train_env import OBJECTIVES
+from train_envs.envs.reward import OBJECTIVES
 
 
 class VectorRewardWrapper(gym.Wrapper):
