@@ -1,7 +1,12 @@
 """Gymnasium environments: the inner controller's tuning parameters as the action."""
 
 from train_envs.envs.config import EnvConfig
-from train_envs.envs.evaluation import evaluate, params_to_action
+from train_envs.envs.evaluation import (
+    EnvEpisodes,
+    evaluate,
+    evaluate_env_params,
+    params_to_action,
+)
 from train_envs.envs.registration import ENV_SPECS, register_envs, registered_ids
 from train_envs.envs.reward import OBJECTIVES
 from train_envs.envs.train_env import TrainTuningEnv
@@ -11,9 +16,11 @@ __all__ = [
     "ENV_SPECS",
     "OBJECTIVES",
     "EnvConfig",
+    "EnvEpisodes",
     "TrainTuningEnv",
     "VectorRewardWrapper",
     "evaluate",
+    "evaluate_env_params",
     "params_to_action",
     "register_envs",
     "registered_ids",

@@ -3,7 +3,8 @@
 The action is ``Box(−1, 1, (n,))`` over the ``n`` exposed :class:`~train_envs.controllers.
 base.TunableParam`. Component ``i`` is the parameter's unit value ``u_i``: ``−1`` its
 ``low``, ``+1`` its ``high``, linear in between (log-linear where the parameter says
-``log``); :func:`params_to_unit` and :func:`unit_to_params` are the two maps.
+``log``); :class:`~train_envs.controllers.params.ParamSpace` holds the two maps (the
+same one the tuners use).
 
 ``mode = "absolute"``: ``u = clip(a, −1, 1)``. ``mode = "delta"``: ``u ← clip(u +
 delta_scale · clip(a, −1, 1), −1, 1)``, starting from the parameters' base values at
@@ -14,36 +15,14 @@ reset. Components outside ``[−1, 1]`` are clipped and counted; NaN/inf raise
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 import numpy as np
 from gymnasium import spaces
 
 from train_envs.controllers.base import Controller, TunableParam
+from train_envs.controllers.params import ParamSpace
 from train_envs.envs.config import ActionConfig
-
-
-def params_to_unit(specs: Sequence[TunableParam], params: Mapping[str, float]) -> list[float]:
-    """The unit values of ``params`` (one per spec, in the order of ``specs``)."""
-    return [p.to_unit(params[p.name]) for p in specs]
-
-
-def unit_to_params(
-    specs: Sequence[TunableParam],
-    unit: Sequence[float],
-    base_unit: Sequence[float],
-    base_params: Mapping[str, float],
-) -> dict[str, float]:
-    """The parameter values of the unit values ``unit``.
-
-    A unit value equal to the base one (``base_unit = params_to_unit(specs,
-    base_params)``) decodes to the base parameter itself: ``from_unit`` and ``to_unit``
-    are inverse only up to rounding.
-    """
-    return {
-        p.name: base_params[p.name] if u == base_unit[i] else p.from_unit(u)
-        for i, (p, u) in enumerate(zip(specs, unit, strict=True))
-    }
 
 
 class TuningAction:
@@ -55,7 +34,7 @@ class TuningAction:
         controller_name: for error messages.
 
     Attributes:
-        specs: the exposed parameters, in action order.
+        specs: the exposed parameters, in action order; param_space: their encodings.
         base_params: the controller's parameters at construction (every episode starts
             from them).
         base_unit: their unit values.
@@ -78,11 +57,18 @@ class TuningAction:
             raise ValueError(f"controller {controller_name} exposes no tunable parameters")
         self.specs: tuple[TunableParam, ...] = tuple(specs[n] for n in names)
         self.base_params = controller.get_params()
-        self.base_unit = params_to_unit(self.specs, self.base_params)
+        self.param_space = ParamSpace(self.specs)
+        self.base_unit = self.param_space.unit_of(self.base_params)
         self.space = spaces.Box(-1.0, 1.0, shape=(len(self.specs),), dtype=np.float32)
         self._absolute = config.mode == "absolute"
         self._delta_scale = float(config.delta_scale)
         self.bind(controller)
+
+    def set_native(self, values: Mapping[str, float]) -> None:
+        """Set native parameter values on the controller directly (no action decode);
+        the controller counts as changed, so a reused env rebuilds it."""
+        self.controller.set_params(**values)
+        self.params_changed = True
 
     def bind(self, controller: Controller) -> None:
         """Apply later actions to ``controller`` (holding the base parameters)."""
@@ -132,7 +118,8 @@ class TuningAction:
         ctrl = self.controller
         params = ctrl.get_params()
         if unit != self._applied_unit or params != self._applied_params:
-            ctrl.set_params(**unit_to_params(self.specs, unit, self.base_unit, self.base_params))
+            space = self.param_space
+            ctrl.set_params(**space.decode_action(unit, self.base_unit, self.base_params))
             self._applied_unit = unit
             self._applied_params = ctrl.get_params()
             if unit != self.base_unit:

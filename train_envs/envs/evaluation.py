@@ -198,10 +198,9 @@ class EnvEpisodes(Episodes):
         self.env.reset(seed=seed)
         base = self.env.unwrapped
         if values != {n: self.defaults[n] for n in values}:
-            base.controller.set_params(**values)
             # a reused env rebuilds a controller that ran other parameters
             # (TrainTuningEnv.renew_controller)
-            base._params_changed = True
+            base.set_native_params(values)
         return base.loop
 
 

@@ -166,6 +166,12 @@ class TrainTuningEnv(gym.Env):
         ``controller.params``), whatever the last episode's actions set."""
         return dict(self.action_type.base_params)
 
+    def set_native_params(self, values: Mapping[str, float]) -> None:
+        """Set the controller's parameters to native ``values`` for the coming episode,
+        bypassing the action (what fixed-parameter evaluations use); marks the
+        controller as changed for :meth:`renew_controller`."""
+        self.action_type.set_native(values)
+
     def renew_controller(self) -> bool:
         """Rebuild the controller (and runner) if actions have changed its parameters
         and it keeps state that depends on them (``keeps_parameter_state``).
