@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from train_envs.controllers.base import ControlContext, Observation
+from train_envs.plants.physics import car_davis
 from train_envs.trains import G, TrainParams
 
 
@@ -95,9 +96,6 @@ def per_car_davis(
     m = np.asarray(train.car_masses, float)
     mi = m * (1.0 + train.rotating_mass_factor)
     share = m / m.sum()
-    if train.lead_car_aero:
-        c = np.zeros(m.size)
-        c[0] = train.davis_c_Ns2_per_m2
-    else:
-        c = train.davis_c_Ns2_per_m2 * share
-    return m, mi, train.davis_a_N * share, train.davis_b_Ns_per_m * share, c
+    a, b, c = train.davis_a_N, train.davis_b_Ns_per_m, train.davis_c_Ns2_per_m2
+    ca, cb, c = car_davis(a, b, c, share, train.lead_car_aero)
+    return m, mi, ca, cb, c

@@ -65,6 +65,7 @@ from train_envs.controllers.models import (
 )
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
 from train_envs.plants.lookup import gradient_table
+from train_envs.plants.physics import davis_slope
 from train_envs.validation import check_range
 
 __all__ = [
@@ -343,7 +344,7 @@ class AdaptiveCruiseMPC(Controller):
     # ------------------------------------------------------------------- model
     def _discretise(self, v_lin: float) -> None:
         """Nominal ZOH model in (mm, m/s, kN) with the Davis slope at ``v_lin``."""
-        slope = self._cb + 2.0 * self._cc * max(v_lin, 0.0)
+        slope = davis_slope(self._cb, self._cc, max(v_lin, 0.0))
         Ac, Bc, Ec = coupled_cars_relative_continuous(self._k, self._damping, self._mi, slope)
         self._Ad, self._Bd, self._Ed = discretise(Ac, Bc, Ec, self.ctx.dt_s)
         self._Bv_inv = np.linalg.inv(self._Bd[self._n - 1 :, :])

@@ -56,6 +56,7 @@ from train_envs.controllers.dmc.step_response import (
     tail_ratio,
 )
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
+from train_envs.plants.physics import davis_slope
 from train_envs.trains import KMH, G
 from train_envs.validation import (
     check_choice,
@@ -238,7 +239,7 @@ class DMCController(Controller):
             v_nom = ref.end_m / max(ref.duration_s, 1e-9) if ref.duration_s > 0 else 0.0
         self.v_nom = float(v_nom)
         #: linearised Davis slope R'(v_nom) [N s/m]
-        self.k_davis = tr.davis_b_Ns_per_m + 2.0 * tr.davis_c_Ns2_per_m2 * self.v_nom
+        self.k_davis = davis_slope(tr.davis_b_Ns_per_m, tr.davis_c_Ns2_per_m2, self.v_nom)
         tau = ctx.actuator_tau_s if ctx.actuator_order else 0.0
         self._shares = input_shares(ctx)
         # rate bound (whole train, acceleration units): comfort jerk and ctx rate limit

@@ -34,6 +34,7 @@ from scipy.linalg import eigh
 
 from train_envs.controllers.models import difference_matrix
 from train_envs.controllers.train_mpc import zoh
+from train_envs.plants.physics import coupler_matrix
 
 __all__ = ["ReducedTrainModel"]
 
@@ -71,7 +72,7 @@ class ReducedTrainModel:
         self.m_ = nm
         D = difference_matrix(n)
         self.D = D
-        lap = D.T @ D
+        lap = 0.0 - coupler_matrix(n)  # DᵀD
         M = np.diag(m)
         w2, Phi = eigh(self.k * lap, M)  # Phiᵀ M Phi = I, ascending ω²
         w2[0] = 0.0

@@ -30,6 +30,7 @@ import numpy as np
 from train_envs._jit import bisect_right, register
 from train_envs.controllers.tube.kernels import fill_reference_source
 from train_envs.controllers.tube.model import StoppingModel
+from train_envs.plants.physics import davis_horner_N
 
 __all__ = ["StageData", "StageLayout", "fill_reference", "sv_on_table"]
 
@@ -86,10 +87,7 @@ def fill_reference(
     h[o : o + ng] = s_r
     h[o + ng : o + 2 * ng] = v_r
     res = h[o + 2 * ng : o + 3 * ng]
-    np.multiply(v_r, cc, out=res)
-    res += cb
-    res *= v_r
-    res += ca * (v_r > 0)
+    res[:] = davis_horner_N(ca * (v_r > 0), cb, cc, v_r)
     if has_grad:
         k = g_x.searchsorted(s_r, side="right") - 1
         res += cg * (g_tbl[k, 0] + g_tbl[k, 1] * (s_r - g_x[k]))
@@ -99,7 +97,7 @@ register(
     "tube.fill_reference",
     fill_reference,
     source=fill_reference_source,
-    helpers={"bisect_right": bisect_right},
+    helpers={"bisect_right": bisect_right, "davis_horner_N": davis_horner_N},
 )
 
 
