@@ -32,7 +32,12 @@ from typing import Any
 
 import numpy as np
 
-from train_envs.controllers._common import distribute, envelope_N, input_shares
+from train_envs.controllers._common import (
+    distribute,
+    distribute_single,
+    envelope_N,
+    input_shares,
+)
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.dmc.laws import (
     SatisfactionShape,
@@ -435,12 +440,8 @@ class DMCController(Controller):
             u = min(max(u, u_total_prev - du), u_total_prev + du)
         if not self._single:
             return distribute(self.ctx, u, y, up_N, self._shares)
-        # distribute() for one whole-train input, on floats: envelope, then rate window
         lo_y, hi_y = envelope_N(self.ctx.train, y)
-        u = min(max(u, lo_y), hi_y)
-        if self._du_step is not None:
-            u = min(max(u, u_total_prev - self._du_step), u_total_prev + self._du_step)
-        return np.array([u])
+        return np.array([distribute_single(lo_y, hi_y, u, u_total_prev, self._du_step)])
 
     # -------------------------------------------------------------- control
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:

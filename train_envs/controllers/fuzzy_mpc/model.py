@@ -142,6 +142,7 @@ class ReducedTrainModel:
         """Discrete (A_i, B_i) of every rule: lead-car slope at e_1 = ε_i (ZOH, period dt)."""
         As, Bs = [], []
         for eps in centres:
+            # Davis slope b + c (2 v_r + ε): not davis_slope's b + (2 c) v₀ order
             slopes = self.b + self.c * max(2.0 * v_r + eps, 0.0)
             Ac, Bc = self.continuous(slopes)
             A, B = zoh(Ac, Bc, self.dt)
