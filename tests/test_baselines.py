@@ -15,7 +15,12 @@ from train_envs.controllers import (
     PIDController,
     make_controller,
 )
-from train_envs.controllers._common import distribute, input_shares
+from train_envs.controllers._common import (
+    distribute,
+    distribute_single,
+    envelope_N,
+    input_shares,
+)
 from train_envs.controllers.fuzzy import (
     NB,
     PB,
@@ -311,6 +316,18 @@ def test_whole_train_force_is_split_by_car_mass():
     np.testing.assert_allclose(u, train.max_traction_N(10.0) * shares)
     one = replace(ctx, n_inputs=1)
     np.testing.assert_allclose(input_shares(one), [1.0])
+
+
+def test_distribute_single_equals_distribute_with_one_input():
+    sc = get_scenario("paper001_stopping")
+    ctx = replace(sc.control_context(), n_inputs=1, du_max_Nps=5e4)
+    lo, hi = envelope_N(ctx.train, 12.0)
+    du = ctx.du_max_Nps * ctx.dt_s
+    for u in (-1e9, -3e4, 0.0, 2e4, 1e9):
+        for prev in (-1e5, 0.0, 3e4):
+            ref = distribute(ctx, u, 12.0, np.array([prev]), np.ones(1))
+            assert distribute_single(lo, hi, u, prev, du) == float(ref[0])
+    assert distribute_single(lo, hi, 1e9, 0.0, None) == hi
 
 
 @pytest.mark.parametrize(

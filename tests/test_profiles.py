@@ -374,3 +374,18 @@ def test_to_dataframe_columns_and_values() -> None:
     assert df["a_mps2"].max() <= get_train("paper004_btype_metro").max_accel_mps2 + 1e-9
     assert df["a_mps2"].iloc[-1] == pytest.approx(-0.8)  # service braking into the stop
     assert np.all(df["v_mps"] <= df["v_limit_mps"] + 1e-9)
+
+
+def test_sv_on_table_is_sv_at_t_on_the_segment_table() -> None:
+    from train_envs.controllers.tube import stage
+    from train_envs.lines.speed_profile import sv_on_table
+
+    assert stage.sv_on_table is sv_on_table  # the tube stage reads the same function
+    prof = minimum_time_profile("CN_Songjiazhuang_Yizhuang", "CN_Beijing_Subway", ds=2.0)
+    t = np.linspace(-5.0, prof.running_time_s + 5.0, 2001)
+    s, v = prof.sv_at_t(t)
+    np.testing.assert_allclose(s, prof.s_at_t(t), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(v, prof.v_at_t(t), rtol=0, atol=1e-9)
+    s2, v2 = sv_on_table(prof.t_s, prof._seg_tbl, t)
+    np.testing.assert_array_equal(s2, s)
+    np.testing.assert_array_equal(v2, v)

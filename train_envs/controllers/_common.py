@@ -6,17 +6,24 @@
 * :func:`envelope_N` — the speed-dependent force envelope ``[−B(v), F(v)]`` of the train.
 * :func:`input_shares` and :func:`distribute` — split a whole-train force over the
   controller's inputs in proportion to car mass, then clip every input to its share of
-  the envelope and to the per-input rate limit ``du_max_Nps``.
+  the envelope and to the per-input rate limit ``du_max_Nps``;
+  :func:`distribute_single` is its float twin for one whole-train input.
+* :func:`solver_info` — the QP solver's diagnostics of one solve, as step info.
 """
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from train_envs.controllers.base import ControlContext, Observation
+from train_envs.plants.physics import car_davis
 from train_envs.trains import G, TrainParams
+
+if TYPE_CHECKING:
+    from train_envs.controllers.mpc_core import MPCSolution
 
 
 def reference_at(ctx: ControlContext, obs: Observation) -> tuple[float, float]:
@@ -82,6 +89,18 @@ def distribute(
     return u
 
 
+def distribute_single(
+    lo: float, hi: float, u: float, u_prev: float, du_step: float | None
+) -> float:
+    """:func:`distribute` for one whole-train input, on floats: ``u`` clipped to the
+    envelope ``[lo, hi]``, then to the rate window ``u_prev ± du_step`` (none when
+    ``du_step`` is None)."""
+    u = min(max(u, lo), hi)
+    if du_step is not None:
+        u = min(max(u, u_prev - du_step), u_prev + du_step)
+    return u
+
+
 def per_car_davis(
     train: TrainParams,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -95,9 +114,19 @@ def per_car_davis(
     m = np.asarray(train.car_masses, float)
     mi = m * (1.0 + train.rotating_mass_factor)
     share = m / m.sum()
-    if train.lead_car_aero:
-        c = np.zeros(m.size)
-        c[0] = train.davis_c_Ns2_per_m2
-    else:
-        c = train.davis_c_Ns2_per_m2 * share
-    return m, mi, train.davis_a_N * share, train.davis_b_Ns_per_m * share, c
+    a, b, c = train.davis_a_N, train.davis_b_Ns_per_m, train.davis_c_Ns2_per_m2
+    ca, cb, c = car_davis(a, b, c, share, train.lead_car_aero)
+    return m, mi, ca, cb, c
+
+
+def solver_info(sol: MPCSolution) -> dict[str, Any]:
+    """The QP solver's diagnostics of one solve, as the keys of a controller's step info:
+    solve time, iterations, fallback, largest slack, status and overhead."""
+    return {
+        "solve_time_s": sol.solve_time_s,
+        "iterations": sol.iterations,
+        "fallback": sol.fallback,
+        "slack_max": sol.slack_max,
+        "status_val": sol.status_val,
+        "overhead_s": sol.overhead_s,
+    }

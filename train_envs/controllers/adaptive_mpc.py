@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from train_envs.controllers._common import per_car_davis
+from train_envs.controllers._common import per_car_davis, solver_info
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.models import (
     coupled_cars_relative_continuous,
@@ -63,8 +63,9 @@ from train_envs.controllers.models import (
     gradient_accel,
     resistance_offset_accel,
 )
-from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
+from train_envs.controllers.mpc_core import LinearMPC
 from train_envs.plants.lookup import gradient_table
+from train_envs.plants.physics import davis_slope
 from train_envs.validation import check_range
 
 __all__ = [
@@ -343,7 +344,7 @@ class AdaptiveCruiseMPC(Controller):
     # ------------------------------------------------------------------- model
     def _discretise(self, v_lin: float) -> None:
         """Nominal ZOH model in (mm, m/s, kN) with the Davis slope at ``v_lin``."""
-        slope = self._cb + 2.0 * self._cc * max(v_lin, 0.0)
+        slope = davis_slope(self._cb, self._cc, max(v_lin, 0.0))
         Ac, Bc, Ec = coupled_cars_relative_continuous(self._k, self._damping, self._mi, slope)
         self._Ad, self._Bd, self._Ed = discretise(Ac, Bc, Ec, self.ctx.dt_s)
         self._Bv_inv = np.linalg.inv(self._Bd[self._n - 1 :, :])
@@ -542,7 +543,7 @@ class AdaptiveCruiseMPC(Controller):
         x_nom = Ad @ x + Bd @ u0 + d_nom[0]
         self._prev = (X, x_nom)
 
-        info = self._info(sol)
+        info = solver_info(sol)
         dR = self.estimated_resistance_deviation_kN()
         info.update(
             est_error=est_err,
@@ -559,17 +560,6 @@ class AdaptiveCruiseMPC(Controller):
             u_ff_kN=u_ff[0].copy(),
         )
         return u0 * 1e3, info
-
-    @staticmethod
-    def _info(sol: MPCSolution) -> dict[str, Any]:
-        return {
-            "solve_time_s": sol.solve_time_s,
-            "iterations": sol.iterations,
-            "fallback": sol.fallback,
-            "slack_max": sol.slack_max,
-            "status_val": sol.status_val,
-            "overhead_s": sol.overhead_s,
-        }
 
 
 class NominalCruiseMPC(AdaptiveCruiseMPC):

@@ -62,6 +62,7 @@ import numpy as np
 
 from train_envs.controllers._common import (
     distribute,
+    distribute_single,
     envelope_N,
     feedforward_N,
     input_shares,
@@ -185,20 +186,14 @@ class FuzzyPIDController(Controller):
         u = self._Mi * a_cmd
         if self.feedforward:
             u += feedforward_N(ctx, obs.s_m, v)
+        lo, hi = envelope_N(tr, v)
         if self._single and type(v) is float:
-            # distribute() for one whole-train input, on floats: clip to the envelope,
-            # then to the rate window around the previous command
-            lo = -tr.max_brake_N(v)
-            hi = tr.max_traction_N(v)
-            u_sat = min(max(u, lo), hi)
-            if self._du_step is not None:
-                prev = float(np.sum(obs.u_prev_N))  # whole-train previous command
-                u_sat = min(max(u_sat, prev - self._du_step), prev + self._du_step)
+            prev = float(np.sum(obs.u_prev_N))  # whole-train previous command
+            u_sat = distribute_single(lo, hi, u, prev, self._du_step)
             out = np.array([u_sat])
         else:
             out = distribute(ctx, u, v, obs.u_prev_N, self._shares)
             u_sat = float(np.sum(out))
-            lo, hi = envelope_N(tr, v)
         clipped = abs(u_sat - u) > 1e-9 * max(1.0, hi - lo)
         if not clipped or (u > u_sat and e < 0) or (u < u_sat and e > 0):
             self._integral += ki * e * dt  # conditional integration (anti-windup)

@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from train_envs.mpc.design import zoh
+from train_envs.plants.physics import coupler_matrix, davis_N
 from train_envs.trains import G
 
 __all__ = [
@@ -107,14 +108,9 @@ def difference_matrix(n: int) -> np.ndarray:
 
 
 def coupler_pattern(n: int) -> np.ndarray:
-    """``n × n`` matrix ``K_c = −DᵀD``: car i's coupler force is ``k (K_c q)_i`` [N]."""
-    Kc = np.zeros((n, n))
-    for j in range(n - 1):
-        Kc[j, j] -= 1.0
-        Kc[j, j + 1] += 1.0
-        Kc[j + 1, j] += 1.0
-        Kc[j + 1, j + 1] -= 1.0
-    return Kc
+    """``n × n`` matrix ``K_c = −DᵀD``: car i's coupler force is ``k (K_c q)_i`` [N]
+    (:func:`~train_envs.plants.physics.coupler_matrix`)."""
+    return coupler_matrix(n)
 
 
 def coupled_cars_continuous(
@@ -185,7 +181,7 @@ def resistance_offset_accel(
     affine term is its negative. ``v_r`` is clipped at zero (no ``a`` at standstill).
     """
     vr = np.maximum(v_r, 0.0)[:, None]
-    R = ca * (vr > 0) + cb * vr + cc * vr * vr
+    R = davis_N(ca * (vr > 0), cb, cc, vr)
     return (R - slope * vr) / m_inertial
 
 

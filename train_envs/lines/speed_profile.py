@@ -29,6 +29,32 @@ FloatOrArray = float | np.ndarray
 _SCALAR = (float, int)  # fast path for scalar arguments (np.float64 is a float)
 
 
+def sv_on_table(p_t: np.ndarray, p_tbl: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Reference position and speed at the times ``x`` of a speed profile given by its
+    node times ``p_t`` and segment table ``p_tbl`` (per segment ``t_i, t_i+1 − t_i, v_i,
+    a_i/2, a_i, s_i, s_i+1``), with one segment search and one gather of the segments'
+    constants: ``s = min(s_i + (v_i + a_i/2 τ) τ, s_i+1)``, ``v = max(v_i + a_i τ, 0)``,
+    ``τ = clip(x − t_i, 0, t_i+1 − t_i)`` (:meth:`SpeedProfile.sv_at_t` on arrays)."""
+    i = p_t.searchsorted(x, side="right")
+    i -= 1
+    np.maximum(i, 0, out=i)
+    np.minimum(i, p_t.size - 2, out=i)
+    seg = p_tbl[i].T
+    t0, span, v0, ha, a, s0, s1 = seg
+    tau = x - t0
+    np.maximum(tau, 0.0, out=tau)
+    np.minimum(tau, span, out=tau)
+    s = ha * tau
+    s += v0
+    s *= tau
+    s += s0
+    np.minimum(s, s1, out=s)
+    v = a * tau
+    v += v0
+    np.maximum(v, 0.0, out=v)
+    return s, v
+
+
 # ====================================================================== SpeedProfile
 @dataclass(frozen=True, eq=False, repr=False)
 class SpeedProfile:
@@ -185,27 +211,9 @@ class SpeedProfile:
         return np.minimum(s, self.s_m[i + 1])
 
     def sv_at_t(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(s_at_t(t), v_at_t(t))`` for an array of times with one segment search (and
-        one gather of the segments' constants: the same arithmetic, fewer numpy calls)."""
-        x = np.asarray(t, float)
-        i = self.t_s.searchsorted(x, side="right")
-        i -= 1
-        np.maximum(i, 0, out=i)
-        np.minimum(i, len(self._t) - 2, out=i)
-        seg = self._seg_tbl[i].T
-        t0, span, v0, ha, a, s0, s1 = seg
-        tau = x - t0
-        np.maximum(tau, 0.0, out=tau)
-        np.minimum(tau, span, out=tau)
-        s = ha * tau
-        s += v0
-        s *= tau
-        s += s0
-        np.minimum(s, s1, out=s)
-        v = a * tau
-        v += v0
-        np.maximum(v, 0.0, out=v)
-        return s, v
+        """``(s_at_t(t), v_at_t(t))`` for an array of times (:func:`sv_on_table` on the
+        profile's segment table: the same arithmetic, fewer numpy calls)."""
+        return sv_on_table(self.t_s, self._seg_tbl, np.asarray(t, float))
 
     def sample_sv(self, t0: float, dt: float, n: int) -> tuple[list[float], list[float]]:
         """``(s, v)`` at the ``n`` times ``t0 + k dt``, ``k = 1..n``, as Python lists.
@@ -274,4 +282,4 @@ class SpeedProfile:
         )
 
 
-__all__ = ["SpeedProfile"]
+__all__ = ["SpeedProfile", "sv_on_table"]

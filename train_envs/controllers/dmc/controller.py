@@ -32,7 +32,12 @@ from typing import Any
 
 import numpy as np
 
-from train_envs.controllers._common import distribute, envelope_N, input_shares
+from train_envs.controllers._common import (
+    distribute,
+    distribute_single,
+    envelope_N,
+    input_shares,
+)
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.dmc.laws import (
     SatisfactionShape,
@@ -56,6 +61,7 @@ from train_envs.controllers.dmc.step_response import (
     tail_ratio,
 )
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
+from train_envs.plants.physics import davis_slope
 from train_envs.trains import KMH, G
 from train_envs.validation import (
     check_choice,
@@ -238,7 +244,7 @@ class DMCController(Controller):
             v_nom = ref.end_m / max(ref.duration_s, 1e-9) if ref.duration_s > 0 else 0.0
         self.v_nom = float(v_nom)
         #: linearised Davis slope R'(v_nom) [N s/m]
-        self.k_davis = tr.davis_b_Ns_per_m + 2.0 * tr.davis_c_Ns2_per_m2 * self.v_nom
+        self.k_davis = davis_slope(tr.davis_b_Ns_per_m, tr.davis_c_Ns2_per_m2, self.v_nom)
         tau = ctx.actuator_tau_s if ctx.actuator_order else 0.0
         self._shares = input_shares(ctx)
         # rate bound (whole train, acceleration units): comfort jerk and ctx rate limit
@@ -434,12 +440,8 @@ class DMCController(Controller):
             u = min(max(u, u_total_prev - du), u_total_prev + du)
         if not self._single:
             return distribute(self.ctx, u, y, up_N, self._shares)
-        # distribute() for one whole-train input, on floats: envelope, then rate window
         lo_y, hi_y = envelope_N(self.ctx.train, y)
-        u = min(max(u, lo_y), hi_y)
-        if self._du_step is not None:
-            u = min(max(u, u_total_prev - self._du_step), u_total_prev + self._du_step)
-        return np.array([u])
+        return np.array([distribute_single(lo_y, hi_y, u, u_total_prev, self._du_step)])
 
     # -------------------------------------------------------------- control
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:

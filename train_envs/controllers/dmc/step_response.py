@@ -39,6 +39,7 @@ import math
 import numpy as np
 import scipy.linalg as sla
 
+from train_envs.controllers.models import point_lag_continuous
 from train_envs.validation import check_nonnegative, check_positive
 
 
@@ -62,8 +63,8 @@ def step_response(
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
     if tau_s > 0:
-        A = np.array([[-kappa_1ps, 1.0], [0.0, -1.0 / tau_s]])
-        B = np.array([0.0, 1.0 / tau_s])
+        Ac, Bc, _ = point_lag_continuous(kappa_1ps, tau_s)
+        A, B = Ac[1:, 1:], Bc[1:, 0]
     else:
         A = np.array([[-kappa_1ps]])
         B = np.array([1.0])

@@ -47,6 +47,7 @@ from train_envs.controllers.fuzzy_mpc.lmi import KothareLMI, LMISolution
 from train_envs.controllers.fuzzy_mpc.memberships import TriangularMemberships
 from train_envs.controllers.fuzzy_mpc.model import ReducedTrainModel
 from train_envs.plants.lookup import gradient_table
+from train_envs.plants.physics import davis_N
 from train_envs.trains import G
 from train_envs.validation import check_range
 
@@ -233,7 +234,7 @@ class FuzzyMPCController(Controller):
 
     def _equilibrium(self, obs: Observation, v_r: float, a_r: float) -> np.ndarray:
         vr = max(v_r, 0.0)
-        u = (self._ca if vr > 0 else 0.0) + self._cb * vr + self._cc * vr * vr
+        u = davis_N(self._ca if vr > 0 else 0.0, self._cb, self._cc, vr)
         if self._grad is not None:
             u = u + self._m * G * np.asarray(self._grad(obs.positions_m), float) / 1000.0
         if self.feedforward == "full":

@@ -34,6 +34,7 @@ from scipy.linalg import eigh
 
 from train_envs.controllers.models import difference_matrix
 from train_envs.controllers.train_mpc import zoh
+from train_envs.plants.physics import coupler_matrix
 
 __all__ = ["ReducedTrainModel"]
 
@@ -71,7 +72,7 @@ class ReducedTrainModel:
         self.m_ = nm
         D = difference_matrix(n)
         self.D = D
-        lap = D.T @ D
+        lap = 0.0 - coupler_matrix(n)  # DᵀD
         M = np.diag(m)
         w2, Phi = eigh(self.k * lap, M)  # Phiᵀ M Phi = I, ascending ω²
         w2[0] = 0.0
@@ -141,6 +142,7 @@ class ReducedTrainModel:
         """Discrete (A_i, B_i) of every rule: lead-car slope at e_1 = ε_i (ZOH, period dt)."""
         As, Bs = [], []
         for eps in centres:
+            # Davis slope b + c (2 v_r + ε): not davis_slope's b + (2 c) v₀ order
             slopes = self.b + self.c * max(2.0 * v_r + eps, 0.0)
             Ac, Bc = self.continuous(slopes)
             A, B = zoh(Ac, Bc, self.dt)

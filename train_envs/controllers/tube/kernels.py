@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from train_envs._jit import bisect_right
+from train_envs.plants.physics import davis_horner_N
 
 __all__ = ["closed_form_source", "fill_reference_source"]
 
@@ -75,10 +76,7 @@ def fill_reference_source(
             v = 0.0
         h[o + j] = s
         h[o + ng + j] = v
-        r = v * cc
-        r += cb
-        r *= v
-        r += ca if v > 0.0 else 0.0
+        r = davis_horner_N(ca if v > 0.0 else 0.0, cb, cc, v)
         if has_grad:
             k = bisect_right(g_x, s) - 1  # (a NaN position gives NaN at any index)
             if k < 0:

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 
-from train_envs.controllers.train_mpc import zoh
+from train_envs.controllers.models import dead_time_maps, discretise, point_lag_continuous
 from train_envs.validation import check_positive, check_range
 
 __all__ = [
@@ -109,11 +109,8 @@ def stopping_model(dt_s: float, tau_s: float, delay_steps: int) -> StoppingModel
     if hit is not None:
         return hit
     if tau > 0:
-        Ac = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0 / tau]])
-        Bc = np.array([[0.0], [0.0], [1.0 / tau]])
-        Ec = np.array([[0.0], [1.0], [0.0]])
-        Ad, BE = zoh(Ac, np.hstack([Bc, Ec]), dt)
-        Bd, Ed = BE[:, 0], BE[:, 1]
+        Ad, Bd, Ed = discretise(*point_lag_continuous(0.0, tau), dt)
+        Bd, Ed = Bd[:, 0], Ed[:, 0]
     else:  # no lag: the acceleration follows the command within the period
         Ad = np.array([[1.0, dt, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
         Bd = np.array([0.5 * dt * dt, dt, 1.0])
@@ -124,15 +121,8 @@ def stopping_model(dt_s: float, tau_s: float, delay_steps: int) -> StoppingModel
     A[3, 3] = 1.0
     B = np.append(Bd, 1.0).reshape(4, 1)
     E = np.append(Ed, 0.0).reshape(4, 1)
-    pows = [np.eye(3)]
-    for _ in range(l):
-        pows.append(Ad @ pows[-1])
-    Gam_u = np.zeros((3, l))
-    Gam_w = np.zeros((3, l))
-    for j in range(l):
-        Gam_u[:, j] = pows[l - 1 - j] @ Bd
-        Gam_w[:, j] = pows[l - 1 - j] @ Ed
-    arrays = [np.array(a, dtype=float) for a in (Ad, Bd, Ed, A, B, E, pows[l], Gam_u, Gam_w)]
+    Phi_l, Gam_u, Gam_w = dead_time_maps(Ad, Bd, Ed, l)
+    arrays = [np.array(a, dtype=float) for a in (Ad, Bd, Ed, A, B, E, Phi_l, Gam_u, Gam_w)]
     for a in arrays:
         a.setflags(write=False)  # shared through the cache
     model = StoppingModel(dt, tau, l, *arrays)

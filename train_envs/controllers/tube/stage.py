@@ -30,32 +30,10 @@ import numpy as np
 from train_envs._jit import bisect_right, register
 from train_envs.controllers.tube.kernels import fill_reference_source
 from train_envs.controllers.tube.model import StoppingModel
+from train_envs.lines.speed_profile import sv_on_table
+from train_envs.plants.physics import davis_horner_N
 
 __all__ = ["StageData", "StageLayout", "fill_reference", "sv_on_table"]
-
-
-def sv_on_table(p_t: np.ndarray, p_tbl: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Reference position and speed at the times ``x`` of a speed profile given by its
-    node times ``p_t`` and segment table ``p_tbl`` (per segment ``t_i, t_i+1 − t_i, v_i,
-    a_i/2, a_i, s_i, s_i+1``): the arithmetic of :meth:`SpeedProfile.sv_at_t`."""
-    i = p_t.searchsorted(x, side="right")
-    i -= 1
-    np.maximum(i, 0, out=i)
-    np.minimum(i, p_t.size - 2, out=i)
-    seg = p_tbl[i].T
-    t0, span, v0, ha, a, s0, s1 = seg
-    tau = x - t0
-    np.maximum(tau, 0.0, out=tau)
-    np.minimum(tau, span, out=tau)
-    s = ha * tau
-    s += v0
-    s *= tau
-    s += s0
-    np.minimum(s, s1, out=s)
-    v = a * tau
-    v += v0
-    np.maximum(v, 0.0, out=v)
-    return s, v
 
 
 def fill_reference(
@@ -86,10 +64,7 @@ def fill_reference(
     h[o : o + ng] = s_r
     h[o + ng : o + 2 * ng] = v_r
     res = h[o + 2 * ng : o + 3 * ng]
-    np.multiply(v_r, cc, out=res)
-    res += cb
-    res *= v_r
-    res += ca * (v_r > 0)
+    res[:] = davis_horner_N(ca * (v_r > 0), cb, cc, v_r)
     if has_grad:
         k = g_x.searchsorted(s_r, side="right") - 1
         res += cg * (g_tbl[k, 0] + g_tbl[k, 1] * (s_r - g_x[k]))
@@ -99,7 +74,7 @@ register(
     "tube.fill_reference",
     fill_reference,
     source=fill_reference_source,
-    helpers={"bisect_right": bisect_right},
+    helpers={"bisect_right": bisect_right, "davis_horner_N": davis_horner_N},
 )
 
 

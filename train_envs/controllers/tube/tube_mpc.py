@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from train_envs._jit import implementation
-from train_envs.controllers._common import distribute, input_shares
+from train_envs.controllers._common import distribute, input_shares, solver_info
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
 from train_envs.controllers.tube.closed_form import adopt, make_closed_form
@@ -479,16 +479,7 @@ class TubeMPC(Controller):
         return np.array([u_acc * mi])
 
     def _info(self, sol: MPCSolution) -> dict[str, Any]:
-        return {
-            "terminal_relaxed": self._relaxed,
-            "solve_time_s": sol.solve_time_s,
-            "iterations": sol.iterations,
-            "fallback": sol.fallback,
-            "slack_max": sol.slack_max,
-            "status_val": sol.status_val,
-            "overhead_s": sol.overhead_s,
-            "J": sol.cost,
-        }
+        return {"terminal_relaxed": self._relaxed, **solver_info(sol), "J": sol.cost}
 
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
         data = self._stage_data(obs)
