@@ -13,8 +13,8 @@ from train_envs.controllers.fuzzy_mpc import (
     ReducedTrainModel,
     TriangularMemberships,
 )
-from train_envs.controllers.train_mpc import zoh
 from train_envs.lines.profiles import piecewise_speed_command
+from train_envs.mpc import zoh
 from train_envs.plants.multi_car import ActuatorParams
 from train_envs.reference import Reference
 from train_envs.scenarios import get_scenario

@@ -1,5 +1,6 @@
 """The layers of the library, read from the source with ``ast`` (every import counts,
-including those inside functions).
+including those inside functions; imports under ``if TYPE_CHECKING:`` count for the
+layer rules, not for cycles, since they never run).
 
 plants / lines / trains → mpc engine → controllers → scenarios → runner → envs →
 (reproductions, CLI) → tuners → agents.  Nothing imports upward and there is no
@@ -47,12 +48,29 @@ def _resolve(name: str) -> str | None:
     return None
 
 
-def _imports(mod: str) -> set[str]:
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def _imports(mod: str, runtime_only: bool = False) -> set[str]:
+    """Library modules ``mod`` imports; ``runtime_only`` leaves out the imports under
+    ``if TYPE_CHECKING:`` (annotations only, never executed)."""
     path = MODULES[mod]
     tree = ast.parse(path.read_text(), str(path))
     is_pkg = path.name == "__init__.py"
     out: set[str] = set()
+    typing_only = {
+        id(n)
+        for block in ast.walk(tree)
+        if isinstance(block, ast.If) and _is_type_checking(block.test)
+        for stmt in block.body
+        for n in ast.walk(stmt)
+    }
     for node in ast.walk(tree):
+        if runtime_only and id(node) in typing_only:
+            continue
         if isinstance(node, ast.Import):
             targets = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -75,6 +93,8 @@ def _imports(mod: str) -> set[str]:
 
 
 GRAPH = {m: _imports(m) for m in MODULES}
+#: the graph of executed imports (what can form an import cycle)
+RUNTIME = {m: _imports(m, runtime_only=True) for m in MODULES}
 
 
 def _under(mod: str, prefix: str) -> bool:
@@ -124,7 +144,7 @@ def test_no_import_cycle():
         counter[0] += 1
         stack.append(v)
         on.add(v)
-        for w in sorted(GRAPH[v]):
+        for w in sorted(RUNTIME[v]):
             if w not in index:
                 visit(w)
                 low[v] = min(low[v], low[w])
@@ -141,7 +161,7 @@ def test_no_import_cycle():
             if len(comp) > 1:
                 cycles.append(sorted(comp))
 
-    for v in sorted(GRAPH):
+    for v in sorted(RUNTIME):
         if v not in index:
             visit(v)
     assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)

@@ -16,7 +16,6 @@ import pytest
 from train_envs import _jit
 from train_envs._jit import implementation
 from train_envs.controllers import make_controller
-from train_envs.controllers.mpc_core import LinearMPC
 from train_envs.controllers.tube import (
     ROW_DU,
     ROW_S,
@@ -30,6 +29,7 @@ from train_envs.controllers.tube import (
     tube_tightening,
 )
 from train_envs.controllers.tube.stage import fill_reference
+from train_envs.mpc import LinearMPC
 from train_envs.plants.lookup import gradient_table
 from train_envs.scenarios import DisturbanceSpec, get_scenario
 from train_envs.simulation import ClosedLoop, simulate

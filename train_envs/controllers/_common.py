@@ -23,7 +23,7 @@ from train_envs.plants.physics import car_davis
 from train_envs.trains import G, TrainParams
 
 if TYPE_CHECKING:
-    from train_envs.controllers.mpc_core import MPCSolution
+    from train_envs.mpc import MPCSolution
 
 
 def reference_at(ctx: ControlContext, obs: Observation) -> tuple[float, float]:

@@ -39,7 +39,7 @@ appended to the MPC state.
 ``Σ_{i=1}^{N_p} q_v‖v_i − v_{r,i}1‖² + q_ξ‖ξ_i‖² + Σ_{i=0}^{N_c−1} r_u‖u_i − û_ff,i‖² +
 r_Δ‖Δu_i‖²`` (r_Δ small, ours) subject to the hard force box (eq. 29), a hard rate limit
 (ours), the soft boxes ``0 ≤ v ≤ v_lim`` (eq. 30) and ``|ξ_j| ≤ 0.02 m`` (eq. 33) and the
-excitation box, solved by :class:`~train_envs.controllers.mpc_core.LinearMPC`. The
+excitation box, solved by :class:`~train_envs.mpc.LinearMPC`. The
 estimated matrices are pushed into the QP only when they moved by more than
 ``model_refresh_tol`` and with every re-linearisation; in between the affine term
 evaluates the current estimate at the reference point. Design notes and measurements:
@@ -63,7 +63,7 @@ from train_envs.controllers.models import (
     gradient_accel,
     resistance_offset_accel,
 )
-from train_envs.controllers.mpc_core import LinearMPC
+from train_envs.mpc import LinearMPC
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.physics import davis_slope
 from train_envs.validation import check_range

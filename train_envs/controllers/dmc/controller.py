@@ -60,7 +60,7 @@ from train_envs.controllers.dmc.step_response import (
     step_response,
     tail_ratio,
 )
-from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
+from train_envs.mpc import LinearMPC, MPCSolution
 from train_envs.plants.physics import davis_slope
 from train_envs.trains import KMH, G
 from train_envs.validation import (

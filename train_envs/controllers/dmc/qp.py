@@ -6,7 +6,7 @@ QP at every step (acceleration units, m/s²)::
     s.t.    |Δu(k+j)| ≤ Δu_max                                      (hard)
             u_lo(k+j) ≤ u(k−1) + Σ_{l≤j} Δu(k+l) ≤ u_hi(k+j)        (soft, exact L1 penalty)
 
-*Realisation on the core* (:class:`~train_envs.controllers.mpc_core.LinearMPC`, Δu
+*Realisation on the core* (:class:`~train_envs.mpc.LinearMPC`, Δu
 form): the model is an FIR shift register of the input level, ``z_1(k+1) = u(k)``,
 ``z_{j+1}(k+1) = z_j(k)`` (j < P), with two outputs ``y₁ = Σ_j g_j z_j`` (pulse-response
 taps ``g_j = a_j − a_{j−1}``) and ``y₂ = z_1`` (the input level). From ``x0 = 0`` and the
@@ -37,7 +37,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
+from train_envs.mpc import LinearMPC, MPCSolution
 from train_envs.trains import TrainParams
 
 #: solver fields (solve time, iterations, fallback, slack, status) of a step decided by

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from train_envs.controllers.train_mpc import zoh
+from train_envs.mpc import zoh
 from train_envs.validation import check_range
 
 __all__ = ["BacksteppingCompensator"]

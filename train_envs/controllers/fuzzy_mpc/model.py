@@ -33,7 +33,7 @@ import numpy as np
 from scipy.linalg import eigh
 
 from train_envs.controllers.models import difference_matrix
-from train_envs.controllers.train_mpc import zoh
+from train_envs.mpc import zoh
 from train_envs.plants.physics import coupler_matrix
 
 __all__ = ["ReducedTrainModel"]

@@ -23,10 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
 from train_envs.controllers.tube.model import ROW_DU, ROW_S, ROW_U, ROW_V
 from train_envs.controllers.tube.settings import TubeSettings
 from train_envs.controllers.tube.stage import StageLayout
+from train_envs.mpc import LinearMPC, MPCSolution
 
 __all__ = ["BIG", "ClosedForm", "Limits", "TubeProblem"]
 

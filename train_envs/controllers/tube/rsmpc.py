@@ -52,10 +52,10 @@ from typing import Any
 import numpy as np
 
 from train_envs.controllers.base import ControlContext, Observation, TunableParam
-from train_envs.controllers.mpc_core import MPCSolution
 from train_envs.controllers.tube.problem import TubeProblem
 from train_envs.controllers.tube.stage import StageData
 from train_envs.controllers.tube.tube_mpc import TubeMPC
+from train_envs.mpc import MPCSolution
 
 __all__ = ["HoldDecision", "RobustSelfTriggeredMPC"]
 

@@ -47,7 +47,6 @@ import numpy as np
 from train_envs._jit import implementation
 from train_envs.controllers._common import distribute, input_shares, solver_info
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
-from train_envs.controllers.mpc_core import LinearMPC, MPCSolution
 from train_envs.controllers.tube.closed_form import adopt, make_closed_form
 from train_envs.controllers.tube.model import (
     StoppingModel,
@@ -60,6 +59,7 @@ from train_envs.controllers.tube.model import (
 from train_envs.controllers.tube.problem import BIG, ClosedForm, Limits, TubeProblem
 from train_envs.controllers.tube.settings import DEFAULT_W_BOUND_MPS2, TubeSettings
 from train_envs.controllers.tube.stage import StageData, StageLayout
+from train_envs.mpc import LinearMPC, MPCSolution
 from train_envs.plants.lookup import gradient_table
 from train_envs.trains import G
 
