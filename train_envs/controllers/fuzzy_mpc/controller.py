@@ -38,7 +38,6 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from scipy.linalg import solve_discrete_are
 
 from train_envs.controllers._common import per_car_davis
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
@@ -46,6 +45,7 @@ from train_envs.controllers.fuzzy_mpc.compensator import BacksteppingCompensator
 from train_envs.controllers.fuzzy_mpc.lmi import KothareLMI, LMISolution
 from train_envs.controllers.fuzzy_mpc.memberships import TriangularMemberships
 from train_envs.controllers.fuzzy_mpc.model import ReducedTrainModel
+from train_envs.mpc import terminal_cost_dare
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.physics import davis_N
 from train_envs.trains import G
@@ -259,8 +259,8 @@ class FuzzyMPCController(Controller):
         """LQR gain of the middle rule (used only if the LMI solve fails)."""
         A, B = self._model.rules(v_r, self.memberships.centres)
         i = len(A) // 2
-        P = solve_discrete_are(A[i], B[i], self._W, self._R)
-        K = -np.linalg.solve(self._R + B[i].T @ P @ B[i], B[i].T @ P @ A[i])
+        P, K = terminal_cost_dare(A[i], B[i], self._W, self._R)
+        K = -K
         Qi = P / max(float(x @ P @ x), 1.0)
         return LMISolution(
             gamma=float(x @ P @ x),

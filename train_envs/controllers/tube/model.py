@@ -37,9 +37,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 
 from train_envs.controllers.models import dead_time_maps, discretise, point_lag_continuous
+from train_envs.mpc.design import terminal_cost_dare, terminal_cost_lyapunov
 from train_envs.validation import check_positive, check_range
 
 __all__ = [
@@ -158,9 +158,8 @@ def tube_feedback(model: StoppingModel, q_s: float, q_v: float, r: float) -> Tub
         return hit
     Qx = np.diag([q_s, q_v, 0.0, 0.0])
     Rm = np.array([[r]])
-    P = solve_discrete_are(model.A, model.B, Qx, Rm)
-    P = 0.5 * (P + P.T)
-    K = np.linalg.solve(Rm + model.B.T @ P @ model.B, model.B.T @ P @ model.A).ravel()
+    P, K = terminal_cost_dare(model.A, model.B, Qx, Rm)
+    K = K.ravel()
     A_cl = model.A - np.outer(model.B[:, 0], K)
     for a in (K, A_cl, P):
         a.setflags(write=False)
@@ -175,12 +174,8 @@ def terminal_weight(A_cl: np.ndarray, K: np.ndarray, Qx: np.ndarray, r: float) -
     This is the smallest solution of LMI (20); raises ``ValueError`` if ``A_cl`` is not
     Schur stable.
     """
-    rad = float(np.max(np.abs(np.linalg.eigvals(A_cl))))
-    if rad >= 1.0:
-        raise ValueError(f"A_cl must be Schur stable (spectral radius {rad:.6g} >= 1)")
     K = np.asarray(K, float).reshape(1, -1)
-    P = solve_discrete_lyapunov(A_cl.T, Qx + r * (K.T @ K))
-    return 0.5 * (P + P.T)
+    return terminal_cost_lyapunov(A_cl, Qx + r * (K.T @ K))
 
 
 # ------------------------------------------------------------------------ tightening
