@@ -37,9 +37,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.linalg as sla
 
 from train_envs.controllers.models import point_lag_continuous
+from train_envs.mpc.design import zoh
 from train_envs.validation import check_nonnegative, check_positive
 
 
@@ -62,20 +62,14 @@ def step_response(
     check_nonnegative("dead_time_s", dead_time_s)
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
-    if tau_s > 0:
-        Ac, Bc, _ = point_lag_continuous(kappa_1ps, tau_s)
-        A, B = Ac[1:, 1:], Bc[1:, 0]
-    else:
-        A = np.array([[-kappa_1ps]])
-        B = np.array([1.0])
+    # the speed (and lag) states of the single-point model; the position is not needed
+    Ac, Bc, _ = point_lag_continuous(kappa_1ps, tau_s)
+    A, B = Ac[1:, 1:], Bc[1:, :1]
     nx = A.shape[0]
 
     def flow(t: float) -> tuple[np.ndarray, np.ndarray]:
-        M = np.zeros((nx + 1, nx + 1))
-        M[:nx, :nx] = A * t
-        M[:nx, nx] = B * t
-        E = sla.expm(M)
-        return E[:nx, :nx], E[:nx, nx]
+        Ad, Bd = zoh(A, B, t)
+        return Ad, Bd[:, 0]
 
     Ad, Bd = flow(dt_s)
     out = np.zeros(n)
