@@ -35,7 +35,7 @@ from agents.training import TrainConfig, load_policy, train
 from train_envs.cli import main as cli_main
 from train_envs.envs import registered_ids
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 # the paper-001 stopping env: the RSMPC one once its controller has landed
 STOP_ID = (
     "TrainEnvs/Stopping001-v0"

@@ -41,8 +41,8 @@ SEEDS = (0, 1)
 
 
 @pytest.fixture(scope="module")
-def scenario():
-    return get_scenario("paper001_stopping").with_overrides(
+def scenario(paper001):
+    return paper001.with_overrides(
         disturbance=DisturbanceSpec(random_bound_mps2=W_BAR)
     )
 

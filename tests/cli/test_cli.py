@@ -12,7 +12,7 @@ import pytest
 from train_envs import cli, cli_args
 from train_envs.reproduce import get_reproduction, list_reproductions
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _subcommands(parser: argparse.ArgumentParser) -> list[str]:

@@ -27,15 +27,8 @@ from pymoo.problems import get_problem
 # FlakyTask; everything heavier is imported inside the tests
 from tuners.problem import EnvTuningProblem, PymooTask, PymooTaskProblem
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PID = "TrainEnvs/Stopping001PID-v0"
-
-
-@pytest.fixture(autouse=True)
-def _quiet_optuna():
-    import optuna
-
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
 
 
 def tune(*args, **kwargs):

@@ -17,15 +17,14 @@ from train_envs.lines.profiles import piecewise_speed_command
 from train_envs.mpc import zoh
 from train_envs.plants.multi_car import ActuatorParams
 from train_envs.reference import Reference
-from train_envs.scenarios import get_scenario
 from train_envs.simulation import simulate
 
 KMH = 1 / 3.6
 
 
 @pytest.fixture(scope="module")
-def scenario():
-    return get_scenario("paper003_cruise")
+def scenario(paper003):
+    return paper003
 
 
 @pytest.fixture(scope="module")
