@@ -565,8 +565,7 @@ _CACHE: dict[str, Scenario] = {}
 
 def get_scenario(name: str, **overrides: Any) -> Scenario:
     """Return a named scenario (cached; profiles are computed once), with overrides."""
-    if name not in SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; choose one of: {', '.join(SCENARIOS)}")
+    check_choice("scenario", name, list(SCENARIOS), sort=False)
     if name not in _CACHE:
         _CACHE[name] = SCENARIOS[name]()
     sc = _CACHE[name]

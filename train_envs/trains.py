@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from train_envs.plants.physics import davis_N, davis_sq_N
-from train_envs.validation import check_nonnegative, check_positive, check_range
+from train_envs.validation import check_choice, check_nonnegative, check_positive, check_range
 
 G = 9.81  # m/s², gravitational acceleration used throughout
 KMH = 1.0 / 3.6  # m/s per km/h
@@ -519,15 +519,9 @@ def list_trains() -> list[str]:
 @cache
 def get_train(name: str) -> TrainParams:
     """Return a catalogue train by name (see :func:`list_trains`)."""
+    check_choice("train", name, list_trains(), sort=False)
     if name in PAPER_TRAINS:
         return PAPER_TRAINS[name]()
-    if name in TTOBENCH_TRAIN_FILES:
-        ref = (
-            resources.files("train_envs")
-            / "data"
-            / "TTOBench"
-            / "trains"
-            / TTOBENCH_TRAIN_FILES[name]
-        )
-        return train_from_ttobench(json.loads(ref.read_text()))
-    raise ValueError(f"unknown train {name!r}; choose one of: {', '.join(list_trains())}")
+    folder = resources.files("train_envs") / "data" / "TTOBench" / "trains"
+    ref = folder / TTOBENCH_TRAIN_FILES[name]
+    return train_from_ttobench(json.loads(ref.read_text()))

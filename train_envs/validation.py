@@ -74,8 +74,10 @@ def check_increasing(name: str, values: Sequence[float], *, strict: bool = True)
     return arr
 
 
-def check_choice(name: str, value: str, choices: Sequence[str]) -> str:
-    """Check that ``value`` is one of ``choices``."""
+def check_choice(name: str, value: str, choices: Sequence[str], *, sort: bool = True) -> str:
+    """Check that ``value`` is one of ``choices``: a registry look-up's error names them all
+    (sorted, or in the registry's own order with ``sort=False``)."""
     if value not in choices:
-        raise ValueError(f"unknown {name} {value!r}; choose one of: {', '.join(sorted(choices))}")
+        listed = sorted(choices) if sort else choices
+        raise ValueError(f"unknown {name} {value!r}; choose one of: {', '.join(listed)}")
     return value

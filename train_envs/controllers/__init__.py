@@ -14,6 +14,7 @@ from train_envs.controllers.fuzzy_pid import FuzzyPIDController
 from train_envs.controllers.pid import PIDController
 from train_envs.controllers.train_mpc import MultiCarMPC, PointMassMPC
 from train_envs.controllers.tube import RobustSelfTriggeredMPC, TubeMPC
+from train_envs.validation import check_choice
 
 
 def _tracking(**kw: Any) -> Controller:
@@ -67,10 +68,7 @@ def list_controllers() -> list[str]:
 
 def make_controller(name: str, scenario: Any = None, **params: float) -> Controller:
     """Build a controller by name (``scenario`` lets paper controllers pick its settings)."""
-    if name not in CONTROLLERS:
-        raise ValueError(
-            f"unknown controller {name!r}; choose one of: {', '.join(list_controllers())}"
-        )
+    check_choice("controller", name, list_controllers())
     factory = CONTROLLERS[name]
     if "scenario" in inspect.signature(factory).parameters:
         return factory(scenario=scenario, **params)

@@ -44,6 +44,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from train_envs.validation import check_finite
+
 #: the seven standard linguistic terms, in order
 TERMS: tuple[str, ...] = ("NB", "NM", "NS", "ZO", "PS", "PM", "PB")
 #: term indices, for writing rule tables readably
@@ -53,13 +55,7 @@ UNIVERSE = 3.0
 
 
 def _finite(name: str, x: float) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"fuzzy input {name} must be a real number, got {x!r}") from exc
-    if not math.isfinite(v):
-        raise ValueError(f"fuzzy input {name} must be finite, got {v}")
-    return v
+    return check_finite(f"fuzzy input {name}", x)
 
 
 def _finite_array(name: str, x: np.ndarray | Sequence[float] | float) -> np.ndarray:

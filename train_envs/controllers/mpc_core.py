@@ -1,61 +1,25 @@
 """The linear-MPC QP engine, re-exported from its home :mod:`train_envs.mpc`.
 
 Kept so that ``from train_envs.controllers.mpc_core import LinearMPC`` (README,
-notebooks, user code) keeps working.
+notebooks, user code) keeps working: the public names are those of
+:data:`train_envs.mpc.__all__`, and the private helpers of
+:mod:`train_envs.mpc.description` and :mod:`train_envs.mpc.osqp_backend` (``_BIG``,
+``_Backend``, ``_matrix``, ...) stay importable from here.
 """
 
-from train_envs.mpc.description import (
-    _SOFT_GROUPS,
-    _check_order,
-    _check_penalty_arg,
-    _Group,
-    _matrix,
-    _vector,
-    _weight,
-)
-from train_envs.mpc.design import terminal_cost_dare, terminal_cost_lyapunov
-from train_envs.mpc.linear_mpc import LinearMPC
-from train_envs.mpc.osqp_backend import (
-    _BIG,
-    _DEFAULT_OSQP,
-    _RENAMED_SETTINGS,
-    _RESCUE,
-    _SOLVED,
-    _SOLVED_INACCURATE,
-    _STATUS_EXCEPTION,
-    _STATUS_INVALID_INPUT,
-    _UNCONSTRAINED,
-    _Backend,
-)
-from train_envs.mpc.solution import MPCSolution
-from train_envs.mpc.unconstrained import UnconstrainedAffine, UnconstrainedGain
+from typing import Any
 
-__all__ = [
-    "LinearMPC",
-    "MPCSolution",
-    "UnconstrainedAffine",
-    "UnconstrainedGain",
-    "terminal_cost_dare",
-    "terminal_cost_lyapunov",
-]
+from train_envs import mpc as _mpc
+from train_envs.mpc import *  # noqa: F403
+from train_envs.mpc import description as _description
+from train_envs.mpc import osqp_backend as _osqp_backend
 
-# private names kept importable from the old path
-_PRIVATE = (
-    _BIG,
-    _DEFAULT_OSQP,
-    _RENAMED_SETTINGS,
-    _RESCUE,
-    _SOFT_GROUPS,
-    _SOLVED,
-    _SOLVED_INACCURATE,
-    _STATUS_EXCEPTION,
-    _STATUS_INVALID_INPUT,
-    _UNCONSTRAINED,
-    _Backend,
-    _Group,
-    _check_order,
-    _check_penalty_arg,
-    _matrix,
-    _vector,
-    _weight,
-)
+__all__ = list(_mpc.__all__)
+
+
+def __getattr__(name: str) -> Any:
+    """A private helper of the engine, looked up in its home module."""
+    for home in (_description, _osqp_backend):
+        if name.startswith("_") and name in vars(home):
+            return vars(home)[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

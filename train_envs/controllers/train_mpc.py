@@ -64,17 +64,24 @@ __all__ = [
 
 
 class _TrainMPCBase(Controller):
-    """Shared plumbing: options, solver info, weight updates only when values change."""
+    """Shared plumbing: options, terminal weight, weight updates only when values change.
+
+    Options (keywords of both controllers): ``Np`` horizon, ``terminal`` (augmented
+    Riccati terminal cost), ``feedforward`` (``"full"``, ``"gradient"``, ``"none"``),
+    ``relinearise_mps`` (5 m/s), ``soft_penalty`` (1e3), ``observer_gain`` (0.3),
+    ``unconstrained_first`` (try the exact unconstrained optimum before OSQP); any
+    other keyword is a tunable parameter.
+    """
 
     def __init__(
         self,
         *,
         Np: int,
-        terminal: bool,
-        feedforward: str,
-        relinearise_mps: float,
-        soft_penalty: float,
-        observer_gain: float,
+        terminal: bool = True,
+        feedforward: str = "full",
+        relinearise_mps: float = 5.0,
+        soft_penalty: float = 1e3,
+        observer_gain: float = 0.3,
         unconstrained_first: bool = True,
         **params: float,
     ) -> None:
@@ -101,15 +108,13 @@ class _TrainMPCBase(Controller):
         self._mpc.set_weights(Q=Q, R=R, P=P)
         self._weights_key = tuple(sorted(self._params.items()))
 
-    def _info(self, sol) -> dict[str, Any]:
-        return {
-            "solve_time_s": sol.solve_time_s,
-            "iterations": sol.iterations,
-            "fallback": sol.fallback,
-            "slack_max": sol.slack_max,
-            "status_val": sol.status_val,
-            "overhead_s": sol.overhead_s,
-        }
+    def _terminal_weight(self, Q: np.ndarray, R: np.ndarray) -> np.ndarray | None:
+        """Augmented-Riccati terminal cost of the stage weights (None without ``terminal``)."""
+        if not self.terminal:
+            return None
+        C = self._C
+        _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R)
+        return P
 
     def _on_params_changed(self) -> None:
         # rebuild the QP only for a real change: an env maps its action back onto the
@@ -160,26 +165,11 @@ class PointMassMPC(_TrainMPCBase):
         scenario: Any = None,
         *,
         Np: int = 10,
-        terminal: bool = True,
-        feedforward: str = "full",
         jerk_max: float = 1.0,
-        relinearise_mps: float = 5.0,
-        soft_penalty: float = 1e3,
-        observer_gain: float = 0.3,
-        unconstrained_first: bool = True,
-        **params: float,
+        **options: Any,
     ) -> None:
         self.jerk_max = float(jerk_max)
-        super().__init__(
-            Np=Np,
-            terminal=terminal,
-            feedforward=feedforward,
-            relinearise_mps=relinearise_mps,
-            soft_penalty=soft_penalty,
-            observer_gain=observer_gain,
-            unconstrained_first=unconstrained_first,
-            **params,
-        )
+        super().__init__(Np=Np, **options)
 
     # ----------------------------------------------------------------- model
     def _continuous(self, v_lin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -203,11 +193,7 @@ class PointMassMPC(_TrainMPCBase):
         p = self._params
         Q = np.diag([p["q_s"], p["q_v"]])
         R = np.array([[p["r_du"]]])
-        P = None
-        if self.terminal:
-            C = self._C
-            _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R)
-        return Q, R, P
+        return Q, R, self._terminal_weight(Q, R)
 
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)
@@ -380,7 +366,7 @@ class PointMassMPC(_TrainMPCBase):
             u = distribute(ctx, a_cmd * mi, v_m, obs.u_prev_N, input_shares(ctx))
         else:
             u = np.array([a_cmd * mi])
-        return u, self._info(sol)
+        return u, sol.solver_info()
 
 
 class MultiCarMPC(_TrainMPCBase):
@@ -431,23 +417,9 @@ class MultiCarMPC(_TrainMPCBase):
         *,
         Np: int = 3,
         terminal: bool = True,
-        feedforward: str = "full",
-        relinearise_mps: float = 5.0,
-        soft_penalty: float = 1e3,
-        observer_gain: float = 0.3,
-        unconstrained_first: bool = True,
-        **params: float,
+        **options: Any,
     ) -> None:
-        super().__init__(
-            Np=Np,
-            terminal=terminal,
-            feedforward=feedforward,
-            relinearise_mps=relinearise_mps,
-            soft_penalty=soft_penalty,
-            observer_gain=observer_gain,
-            unconstrained_first=unconstrained_first,
-            **params,
-        )
+        super().__init__(Np=Np, terminal=terminal, **options)
         if not terminal:
             self.name = "mpc000"
 
@@ -467,11 +439,7 @@ class MultiCarMPC(_TrainMPCBase):
         p, n = self._params, self._n
         Q = np.diag([p["q_s"]] + [p["q_dx"]] * (n - 1) + [p["q_v"]] + [p["q_dv"]] * (n - 1))
         R = p["r_du"] * np.eye(n)
-        P = None
-        if self.terminal:
-            C = self._C
-            _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R)
-        return Q, R, P
+        return Q, R, self._terminal_weight(Q, R)
 
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)
@@ -564,6 +532,6 @@ class MultiCarMPC(_TrainMPCBase):
         u_prev = np.asarray(obs.u_prev_N, float) / 1000.0
         sol = self._mpc.solve(x, u_prev, yref, d=D, y_max=y_max)
         self._x_pred = self._Ad @ x + self._Bd @ sol.u0 + D[0]
-        info = self._info(sol)
+        info = sol.solver_info()
         info["w_hat"] = self._w_hat
         return sol.u0 * 1000.0, info

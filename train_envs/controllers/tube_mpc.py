@@ -1,43 +1,38 @@
-"""Paper 001's tube robust MPC: re-exports of :mod:`train_envs.controllers.tube`."""
+"""Paper 001's tube robust MPC: re-exports of :mod:`train_envs.controllers.tube`.
 
-from train_envs.controllers.tube.closed_form import ClosedForm as _Explicit
-from train_envs.controllers.tube.closed_form import _min_reduce
-from train_envs.controllers.tube.model import (
-    _CACHE_MAX,
-    _FEEDBACK,
-    _MODELS,
-    _TIGHTENING,
-    ROW_DU,
-    ROW_S,
-    ROW_U,
-    ROW_V,
-    StoppingModel,
-    TubeFeedback,
-    _cache_put,
-    stopping_model,
-    terminal_weight,
-    tube_feedback,
-    tube_tightening,
-)
-from train_envs.controllers.tube.problem import BIG as _BIG
-from train_envs.controllers.tube.problem import TubeProblem as _Problem
-from train_envs.controllers.tube.settings import DEFAULT_W_BOUND_MPS2, TubeSettings
-from train_envs.controllers.tube.stage import StageData as _StageData
-from train_envs.controllers.tube.tube_mpc import TubeMPC, _single_thread_blas
+The public names are those of :data:`train_envs.controllers.tube.__all__`; the row
+indices and the private helpers of the package's modules (``_cache_put``,
+``_min_reduce``, ``_single_thread_blas``, ...) and the aliases ``_Explicit``,
+``_Problem``, ``_StageData`` and ``_BIG`` stay importable from here.
+"""
 
-__all__ = [
-    "DEFAULT_W_BOUND_MPS2",
-    "StoppingModel",
-    "TubeFeedback",
-    "TubeMPC",
-    "TubeSettings",
-    "stopping_model",
-    "terminal_weight",
-    "tube_feedback",
-    "tube_tightening",
-]
-# (also kept importable here: the row indices and the helpers below)
-_REEXPORTED = (
-    ROW_DU, ROW_S, ROW_U, ROW_V, _BIG, _CACHE_MAX, _FEEDBACK, _MODELS, _TIGHTENING,
-    _Explicit, _Problem, _StageData, _cache_put, _min_reduce, _single_thread_blas,
-)
+from typing import Any
+
+from train_envs.controllers import tube as _tube
+from train_envs.controllers.tube import *  # noqa: F403
+from train_envs.controllers.tube import closed_form as _closed_form
+from train_envs.controllers.tube import model as _model
+from train_envs.controllers.tube import problem as _problem
+from train_envs.controllers.tube import stage as _stage
+from train_envs.controllers.tube import tube_mpc as _tube_mpc
+
+__all__ = list(_tube.__all__)
+
+#: private alias -> (home module, name there)
+_ALIASES = {
+    "_Explicit": (_closed_form, "ClosedForm"),
+    "_Problem": (_problem, "TubeProblem"),
+    "_StageData": (_stage, "StageData"),
+    "_BIG": (_problem, "BIG"),
+}
+
+
+def __getattr__(name: str) -> Any:
+    """A private helper of the package, looked up in its home module."""
+    if name in _ALIASES:
+        module, attr = _ALIASES[name]
+        return vars(module)[attr]
+    for module in (_closed_form, _model, _tube_mpc):
+        if name.startswith("_") and name in vars(module):
+            return vars(module)[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

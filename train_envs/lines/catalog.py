@@ -15,25 +15,18 @@ from functools import cache
 from importlib import resources
 from importlib.resources.abc import Traversable
 
-from train_envs.lines.track import (
-    Track,
-    paper000_multi_section_track,
-    paper000_section_track,
-    paper001_track,
-    paper002_track,
-    paper003_track,
-    paper004_track,
-)
+from train_envs.lines import track
+from train_envs.lines.track import Track
 from train_envs.validation import check_choice
 
 #: Paper lines, in paper order: name -> constructor.
 PAPER_TRACKS: dict[str, Callable[[], Track]] = {
-    "paper000_section": paper000_section_track,
-    "paper000_multi_section": paper000_multi_section_track,
-    "paper001": paper001_track,
-    "paper002": paper002_track,
-    "paper003": paper003_track,
-    "paper004": paper004_track,
+    "paper000_section": track.paper000_section_track,
+    "paper000_multi_section": track.paper000_multi_section_track,
+    "paper001": track.paper001_track,
+    "paper002": track.paper002_track,
+    "paper003": track.paper003_track,
+    "paper004": track.paper004_track,
 }
 
 
@@ -55,25 +48,24 @@ def ttobench_track_ids() -> list[str]:
     return list(_ttobench_files())
 
 
+#: Track-name prefix -> default train, first match wins (see the module docstring).
+TRAIN_FOR_TRACK_PREFIX: tuple[tuple[str, str], ...] = (
+    ("paper000", "paper000_dtype_metro"),
+    ("paper001", "paper001_hst"),
+    ("paper002", "paper002_crh3"),
+    ("paper003", "paper003_shinkansen"),
+    ("paper004", "paper004_btype_metro"),
+    ("CN_", "CN_Beijing_Subway"),
+    ("CH_", "CH_Stadler_FLIRT_TPF"),
+    ("SE_", "CH_Stadler_KISS"),
+    ("00_", "00_Loco_Dyn"),
+)
+
+
 def _default_train(name: str) -> str:
-    if name.startswith("paper000"):
-        return "paper000_dtype_metro"
-    if name.startswith("paper001"):
-        return "paper001_hst"
-    if name.startswith("paper002"):
-        return "paper002_crh3"
-    if name.startswith("paper003"):
-        return "paper003_shinkansen"
-    if name.startswith("paper004"):
-        return "paper004_btype_metro"
-    if name.startswith("CN_"):
-        return "CN_Beijing_Subway"
-    if name.startswith("CH_"):
-        return "CH_Stadler_FLIRT_TPF"
-    if name.startswith("SE_"):
-        return "CH_Stadler_KISS"
-    if name.startswith("00_"):
-        return "00_Loco_Dyn"
+    for prefix, train in TRAIN_FOR_TRACK_PREFIX:
+        if name.startswith(prefix):
+            return train
     raise ValueError(f"no default train rule for track {name!r}")
 
 

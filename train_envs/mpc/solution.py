@@ -7,14 +7,11 @@ when read (:class:`_Predictions`).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from train_envs.mpc.osqp_backend import _SOLVED
-
-if TYPE_CHECKING:
-    from train_envs.mpc.linear_mpc import LinearMPC
 
 
 class MPCSolution:
@@ -110,6 +107,18 @@ class MPCSolution:
         """True when the QP was solved to the requested accuracy."""
         return self.status_val == _SOLVED and not self.fallback
 
+    def solver_info(self) -> dict[str, Any]:
+        """The solver figures a controller reports in its step info: solve and overhead
+        time, iterations, fallback, largest slack and the status code."""
+        return {
+            "solve_time_s": self.solve_time_s,
+            "iterations": self.iterations,
+            "fallback": self.fallback,
+            "slack_max": self.slack_max,
+            "status_val": self.status_val,
+            "overhead_s": self.overhead_s,
+        }
+
     def __repr__(self) -> str:
         return (
             f"MPCSolution(u0={self.u0!r}, status={self.status!r}, iterations={self.iterations}, "
@@ -119,11 +128,15 @@ class MPCSolution:
 
 
 class _Predictions:
-    """Deferred ``(X, Y)`` of one solve: copies of the QP solution and data it needs."""
+    """Deferred ``(X, Y)`` of one solve: copies of the QP solution and data it needs.
+
+    ``mpc`` is the :class:`~train_envs.mpc.linear_mpc.LinearMPC` that solved (typed
+    ``Any``: this module sits below it).
+    """
 
     __slots__ = ("mpc", "x", "th")
 
-    def __init__(self, mpc: LinearMPC, x: np.ndarray, th: np.ndarray) -> None:
+    def __init__(self, mpc: Any, x: np.ndarray, th: np.ndarray) -> None:
         self.mpc, self.x = mpc, x
         self.th = None if mpc._sparse else th.copy()
 
