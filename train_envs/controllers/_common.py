@@ -8,13 +8,12 @@
   controller's inputs in proportion to car mass, then clip every input to its share of
   the envelope and to the per-input rate limit ``du_max_Nps``;
   :func:`distribute_single` is its float twin for one whole-train input.
-* :func:`solver_info` — the QP solver's diagnostics of one solve, as step info.
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,7 +22,7 @@ from train_envs.plants.physics import car_davis
 from train_envs.trains import G, TrainParams
 
 if TYPE_CHECKING:
-    from train_envs.mpc import MPCSolution
+    pass
 
 
 def reference_at(ctx: ControlContext, obs: Observation) -> tuple[float, float]:
@@ -117,16 +116,3 @@ def per_car_davis(
     a, b, c = train.davis_a_N, train.davis_b_Ns_per_m, train.davis_c_Ns2_per_m2
     ca, cb, c = car_davis(a, b, c, share, train.lead_car_aero)
     return m, mi, ca, cb, c
-
-
-def solver_info(sol: MPCSolution) -> dict[str, Any]:
-    """The QP solver's diagnostics of one solve, as the keys of a controller's step info:
-    solve time, iterations, fallback, largest slack, status and overhead."""
-    return {
-        "solve_time_s": sol.solve_time_s,
-        "iterations": sol.iterations,
-        "fallback": sol.fallback,
-        "slack_max": sol.slack_max,
-        "status_val": sol.status_val,
-        "overhead_s": sol.overhead_s,
-    }

@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from train_envs.controllers._common import per_car_davis, solver_info
+from train_envs.controllers._common import per_car_davis
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.models import (
     coupled_cars_relative_continuous,
@@ -543,7 +543,7 @@ class AdaptiveCruiseMPC(Controller):
         x_nom = Ad @ x + Bd @ u0 + d_nom[0]
         self._prev = (X, x_nom)
 
-        info = solver_info(sol)
+        info = sol.solver_info()
         dR = self.estimated_resistance_deviation_kN()
         info.update(
             est_error=est_err,

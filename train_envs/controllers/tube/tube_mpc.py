@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from train_envs._jit import implementation
-from train_envs.controllers._common import distribute, input_shares, solver_info
+from train_envs.controllers._common import distribute, input_shares
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
 from train_envs.controllers.tube.closed_form import adopt, make_closed_form
 from train_envs.controllers.tube.model import (
@@ -479,7 +479,7 @@ class TubeMPC(Controller):
         return np.array([u_acc * mi])
 
     def _info(self, sol: MPCSolution) -> dict[str, Any]:
-        return {"terminal_relaxed": self._relaxed, **solver_info(sol), "J": sol.cost}
+        return {"terminal_relaxed": self._relaxed, **sol.solver_info(), "J": sol.cost}
 
     def compute(self, obs: Observation) -> tuple[np.ndarray, Mapping[str, Any]]:
         data = self._stage_data(obs)
