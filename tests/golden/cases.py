@@ -233,11 +233,13 @@ def blas_kernel() -> str:
     """The BLAS library and kernel numpy runs on (e.g. ``openblas:Haswell``): another
     kernel rounds dot products differently, and the MPCs' trajectories (OSQP at its
     iteration limit, unconstrained-first decisions near a binding row) follow."""
+    import numpy  # noqa: F401 - loads numpy's BLAS
     from threadpoolctl import threadpool_info
 
-    for info in threadpool_info():
-        if info.get("user_api") == "blas":
-            return f"{info.get('internal_api')}:{info.get('architecture')}"
+    # other packages (scipy, solvers) may load BLAS builds of their own: numpy's counts
+    blas = [i for i in threadpool_info() if i.get("user_api") == "blas"]
+    for info in sorted(blas, key=lambda i: "numpy" not in str(i.get("filepath", ""))):
+        return f"{info.get('internal_api')}:{info.get('architecture')}"
     return "unknown"
 
 
