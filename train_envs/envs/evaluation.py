@@ -17,7 +17,8 @@ import json
 import os
 import threading
 from collections import OrderedDict
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import gymnasium as gym
@@ -223,24 +224,30 @@ def evaluate_env_params(
     :func:`~train_envs.simulation.evaluate_params`.
     """
     params = dict(params or {})
-    env = ENV_CACHE.acquire(env_id, config) if reuse_env else _make(env_id, config)
-    ok = False
-    try:
+    with _env(env_id, config, reuse_env) as env:
         source = EnvEpisodes(env, ids={"env": env_id, "driver": label or _label(params)})
-        df = evaluate_params(
+        return evaluate_params(
             source, params, seeds=seeds, episodes=episodes, frames=frames, partial=False
         )
+
+
+@contextmanager
+def _env(env_id: str, config: Mapping[str, Any] | None, reuse_env: bool) -> Iterator[gym.Env]:
+    """An env of ``env_id``: from :data:`ENV_CACHE` and put back after a run that did not
+    fail (``reuse_env``), else made and closed."""
+    if reuse_env:
+        env = ENV_CACHE.acquire(env_id, config)
+    else:
+        env = gym.make(env_id, config=dict(config or {}))
+    ok = False
+    try:
+        yield env
         ok = True
     finally:
         if reuse_env and ok:
             ENV_CACHE.release(env_id, config, env)
         else:
             env.close()
-    return df
-
-
-def _make(env_id: str, config: Mapping[str, Any] | None) -> gym.Env:
-    return gym.make(env_id, config=dict(config or {}))
 
 
 def _policy_fn(env: gym.Env, driver: Driver) -> Callable[[np.ndarray], np.ndarray]:
@@ -278,10 +285,8 @@ def evaluate(
     building and closing one; the table is the same bit for bit.
     """
     seeds = seed_list(seeds, episodes)
-    env = ENV_CACHE.acquire(env_id, config) if reuse_env else _make(env_id, config)
     rows = []
-    ok = False
-    try:
+    with _env(env_id, config, reuse_env) as env:
         policy = _policy_fn(env, driver)
         ids = {"env": env_id, "driver": label or _label(driver)}
         for i, seed in enumerate(seeds):
@@ -302,12 +307,6 @@ def evaluate(
                     extra={"return": ret, "env_steps": n},
                 )
             )
-        ok = True
-    finally:
-        if reuse_env and ok:
-            ENV_CACHE.release(env_id, config, env)
-        else:
-            env.close()
     return metrics_table(rows)
 
 
