@@ -125,6 +125,9 @@ def bench_speed(env_id: str, n: int, workers: int, rounds: int = 4) -> dict:
         f"{min(ratios):.2f}-{max(ratios):.2f}; pool start-up {t_spawn:.1f} s; "
         f"load {out['loadavg']})"
     )
+    print("\n| pool | evaluations/s |\n|---|---:|")
+    print(f"| one worker process | {out['one_worker_evals_per_s']:.3f} |")
+    print(f"| pool of {workers} processes | {out['processes_evals_per_s']:.3f} |\n")
     if pair:
         print(
             f"[speed] the same 4-episode task twice at once on 2 workers vs once on 1 worker ("

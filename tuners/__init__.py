@@ -14,8 +14,7 @@ Names are imported lazily (``import tuners`` stays cheap).
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from train_envs._lazy import lazy_exports
 
 _EXPORTS = {
     "MOWOA": "tuners.mowoa",
@@ -42,13 +41,4 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        return getattr(importlib.import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'tuners' has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return __all__
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -32,7 +32,7 @@ import json
 import math
 import os
 from bisect import bisect_right
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -55,6 +55,27 @@ CURVE_RESISTANCE_COEFF = 600.0
 CURVE_RESISTANCE_MAX_RADIUS_M = 10_000.0
 #: Largest gradient magnitude accepted by the validation [permil] (adhesion railways).
 MAX_ABS_GRADIENT_PERMIL = 100.0
+
+
+def _step_lookup(
+    pos_list: str, val_list: str, pos_array: str, val_array: str, doc: str
+) -> Callable[[Track, FloatOrArray], FloatOrArray]:
+    """A piecewise-constant look-up method: the value of the section holding ``s``.
+
+    Sections start at their positions (right-continuous steps); before the first position
+    the first value holds. Scalars take a bisection over the section lists (the plants'
+    per-step path), arrays :func:`numpy.searchsorted` over the frozen arrays.
+    """
+
+    def lookup(self: Track, s: FloatOrArray) -> FloatOrArray:
+        if isinstance(s, _SCALAR):
+            i = bisect_right(getattr(self, pos_list), s) - 1
+            return getattr(self, val_list)[i if i > 0 else 0]
+        i = np.searchsorted(getattr(self, pos_array), np.asarray(s, float), side="right")
+        return getattr(self, val_array)[np.maximum(i - 1, 0)]
+
+    lookup.__doc__ = doc
+    return lookup
 
 
 def _as_array(value: Any, name: str) -> np.ndarray:
@@ -290,21 +311,20 @@ class Track:
         )
 
     # ------------------------------------------------------------------ lookups
-    def speed_limit_at(self, s: FloatOrArray) -> FloatOrArray:
-        """Speed limit [m/s] at position ``s`` [m] (a section starts at its position)."""
-        if isinstance(s, _SCALAR):
-            i = bisect_right(self._sl_pos, s) - 1
-            return self._sl_val[i if i > 0 else 0]
-        i = np.searchsorted(self.speed_limit_positions_m, np.asarray(s, float), side="right")
-        return self.speed_limits_mps[np.maximum(i - 1, 0)]
-
-    def gradient_permil_at(self, s: FloatOrArray) -> FloatOrArray:
-        """Gradient [permil] at position ``s`` [m], uphill positive."""
-        if isinstance(s, _SCALAR):
-            i = bisect_right(self._gr_pos, s) - 1
-            return self._gr_val[i if i > 0 else 0]
-        i = np.searchsorted(self.gradient_positions_m, np.asarray(s, float), side="right")
-        return self.gradients_permil[np.maximum(i - 1, 0)]
+    speed_limit_at = _step_lookup(
+        "_sl_pos",
+        "_sl_val",
+        "speed_limit_positions_m",
+        "speed_limits_mps",
+        "Speed limit [m/s] at position ``s`` [m] (a section starts at its position).",
+    )
+    gradient_permil_at = _step_lookup(
+        "_gr_pos",
+        "_gr_val",
+        "gradient_positions_m",
+        "gradients_permil",
+        "Gradient [permil] at position ``s`` [m], uphill positive.",
+    )
 
     def curvature_at(self, s: FloatOrArray) -> FloatOrArray:
         """Signed curvature ``1/R`` [1/m] at ``s`` [m] (positive = right-hand curve).
@@ -544,8 +564,9 @@ def _track_from_ttobench_dict(data: Mapping[str, Any]) -> Track:
     stops_entry = data.get("stops")
     if not isinstance(stops_entry, Mapping) or "values" not in stops_entry:
         raise ValueError("TTOBench track field 'stops' must be an object with 'values'")
-    stop_factor = _unit_factor({"position": stops_entry.get("unit", "m")}, "position",
-                               _POSITION_UNITS, "stops")
+    stop_factor = _unit_factor(
+        {"position": stops_entry.get("unit", "m")}, "position", _POSITION_UNITS, "stops"
+    )
     stops = [_num(x, "stops") * stop_factor for x in stops_entry["values"]]
 
     sl_units = data.get("speed limits", {}).get("units", {})

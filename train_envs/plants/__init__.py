@@ -6,8 +6,7 @@ The names below load on first access, so that :mod:`train_envs.trains` can use
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from train_envs._lazy import lazy_exports
 
 _HOMES = {
     "ActuatorParams": "train_envs.plants.actuator",
@@ -21,16 +20,4 @@ _HOMES = {
 }
 
 __all__ = sorted(_HOMES)
-
-
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(home), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_HOMES))
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES)
