@@ -4,13 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg", force=False)
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
+from train_envs.plotting import new_figure
 
 
 def paper002_figure(runs: Mapping[str, pd.DataFrame], *, title: str = "") -> Figure:
@@ -29,7 +27,7 @@ def paper002_figure(runs: Mapping[str, pd.DataFrame], *, title: str = "") -> Fig
     """
     if not runs:
         raise ValueError("runs must contain at least one labelled DataFrame")
-    fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True)
+    fig, axes = new_figure(4, 1, (10, 10), sharex=True)
     ax_e, ax_r, ax_v, ax_f = axes
     first = next(iter(runs.values()))
     ax_r.plot(first["t_s"], first["dR_true_total_kN"], color="black", lw=1.2, label="true (plant)")

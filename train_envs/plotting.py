@@ -3,13 +3,23 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
-import matplotlib
+import pandas as pd
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg", force=False)
-import matplotlib.pyplot as plt  # noqa: E402
-import pandas as pd  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
+
+def new_figure(
+    nrows: int, ncols: int, figsize: tuple[float, float], **kwargs: Any
+) -> tuple[Figure, Any]:
+    """``(figure, axes)`` of a :class:`~matplotlib.figure.Figure` made without pyplot.
+
+    No backend is chosen or changed (Jupyter shows the returned figure inline; a script
+    saves it with ``fig.savefig``) and no global figure manager keeps it alive.
+    ``kwargs`` go to :meth:`Figure.subplots`.
+    """
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
 
 
 def speed_distance_figure(
@@ -24,9 +34,7 @@ def speed_distance_figure(
     """
     if isinstance(runs, pd.DataFrame):
         runs = {"train": runs}
-    fig, (ax, axu) = plt.subplots(
-        2, 1, figsize=(9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1.3]}
-    )
+    fig, (ax, axu) = new_figure(2, 1, (9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1.3]})
     first = next(iter(runs.values()))
     s = first["s_m"]
     ax.plot(s, first["v_limit_mps"] * 3.6, color="red", lw=1.0, ls="--", label="speed limit")
@@ -57,9 +65,7 @@ def speed_distance_figure(
 
 def time_series_figure(df: pd.DataFrame, columns: list[str], *, title: str = "") -> Figure:
     """Stacked time series of the given DataFrame columns against ``t_s``."""
-    fig, axes = plt.subplots(
-        len(columns), 1, figsize=(9, 1.8 * len(columns) + 1), sharex=True, squeeze=False
-    )
+    fig, axes = new_figure(len(columns), 1, (9, 1.8 * len(columns) + 1), sharex=True, squeeze=False)
     for ax, col in zip(axes[:, 0], columns, strict=True):
         ax.plot(df["t_s"], df[col], lw=1.0)
         ax.set_ylabel(col)
@@ -91,8 +97,8 @@ def dmc_adjustment_figure(
         raise ValueError(f"dmc_adjustment_figure needs the columns {missing} (a DMC run)")
     run = df.iloc[:-1]  # the last row is the final state, not a control step
     t = run["t_s"]
-    fig, axes = plt.subplots(
-        4, 1, figsize=(9, 8), sharex=True, gridspec_kw={"height_ratios": [2, 1, 1.4, 1.2]}
+    fig, axes = new_figure(
+        4, 1, (9, 8), sharex=True, gridspec_kw={"height_ratios": [2, 1, 1.4, 1.2]}
     )
     ax_v, ax_e, ax_a, ax_h = axes
     ax_v.plot(t, run["v_ref_mps"] * 3.6, color="black", lw=1.0, ls=":", label="reference")

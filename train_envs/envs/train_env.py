@@ -301,8 +301,6 @@ class TrainTuningEnv(gym.Env):
     def render(self):
         if self.render_mode is None:
             return None
-        import matplotlib.pyplot as plt
-
         from train_envs.plotting import speed_distance_figure
 
         df = self.loop.dataframe()
@@ -310,10 +308,14 @@ class TrainTuningEnv(gym.Env):
             return None
         fig = speed_distance_figure(df, title=self.scenario.name, s_stop_m=self.scenario.s_stop_m)
         if self.render_mode == "rgb_array":
-            fig.canvas.draw()
-            img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
-            plt.close(fig)
-            return img
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+            canvas = FigureCanvasAgg(fig)  # drawn off-screen, whatever the backend
+            canvas.draw()
+            return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+        import matplotlib.pyplot as plt
+
+        plt.figure(fig)  # shown by pyplot's backend (a window, or inline in Jupyter)
         plt.show(block=False)
         plt.pause(0.001)
         if self._fig is not None:
