@@ -9,7 +9,7 @@ import matplotlib
 matplotlib.use("svg")
 import train_envs, train_envs.plotting, train_envs.plots_papers, tuners.plots, agents
 from train_envs.plotting import new_figure
-fig, ax = new_figure(1, 1, (3, 2))
+fig, ax = new_figure((3, 2), 1, 1)
 ax.plot([0, 1], [1, 0])
 import io
 fig.savefig(io.BytesIO(), format="png")

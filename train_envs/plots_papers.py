@@ -27,7 +27,7 @@ def paper002_figure(runs: Mapping[str, pd.DataFrame], *, title: str = "") -> Fig
     """
     if not runs:
         raise ValueError("runs must contain at least one labelled DataFrame")
-    fig, axes = new_figure(4, 1, (10, 10), sharex=True)
+    fig, axes = new_figure((10, 10), 4, 1, sharex=True)
     ax_e, ax_r, ax_v, ax_f = axes
     first = next(iter(runs.values()))
     ax_r.plot(first["t_s"], first["dR_true_total_kN"], color="black", lw=1.2, label="true (plant)")

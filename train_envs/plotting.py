@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from collections.abc import Mapping
 from typing import Any
 
@@ -9,17 +10,33 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 
-def new_figure(
-    nrows: int, ncols: int, figsize: tuple[float, float], **kwargs: Any
-) -> tuple[Figure, Any]:
-    """``(figure, axes)`` of a :class:`~matplotlib.figure.Figure` made without pyplot.
+class ShownFigure(Figure):
+    """A :class:`~matplotlib.figure.Figure` that Jupyter shows as a PNG by itself.
 
-    No backend is chosen or changed (Jupyter shows the returned figure inline; a script
-    saves it with ``fig.savefig``) and no global figure manager keeps it alive.
-    ``kwargs`` go to :meth:`Figure.subplots`.
+    The figures here are made without pyplot (no backend chosen, nothing kept alive by
+    a global figure manager); ``_repr_png_`` lets IPython display one returned by a
+    cell whether or not an inline backend is active.
     """
-    fig = Figure(figsize=figsize)
-    return fig, fig.subplots(nrows, ncols, **kwargs)
+
+    def _repr_png_(self) -> bytes:
+        buf = io.BytesIO()
+        self.savefig(buf, format="png", bbox_inches="tight")
+        return buf.getvalue()
+
+
+def new_figure(
+    figsize: tuple[float, float],
+    nrows: int = 0,
+    ncols: int = 1,
+    *,
+    layout: str | None = None,
+    **kwargs: Any,
+) -> tuple[Figure, Any]:
+    """``(figure, axes)``: a :class:`ShownFigure` and its ``nrows × ncols`` axes
+    (:meth:`Figure.subplots` with ``kwargs``; ``None`` for ``nrows = 0``, the caller adds
+    its own). No backend is chosen or changed; a script saves with ``fig.savefig``."""
+    fig = ShownFigure(figsize=figsize, layout=layout)
+    return fig, (fig.subplots(nrows, ncols, **kwargs) if nrows else None)
 
 
 def speed_distance_figure(
@@ -34,7 +51,7 @@ def speed_distance_figure(
     """
     if isinstance(runs, pd.DataFrame):
         runs = {"train": runs}
-    fig, (ax, axu) = new_figure(2, 1, (9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1.3]})
+    fig, (ax, axu) = new_figure((9, 6), 2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1.3]})
     first = next(iter(runs.values()))
     s = first["s_m"]
     ax.plot(s, first["v_limit_mps"] * 3.6, color="red", lw=1.0, ls="--", label="speed limit")
@@ -63,9 +80,74 @@ def speed_distance_figure(
     return fig
 
 
+def comparison_figure(
+    runs: Mapping[str, pd.DataFrame],
+    *,
+    x: str = "s_m",
+    title: str = "",
+    s_stop_m: float | None = None,
+    zoom_m: float = 20.0,
+) -> Figure:
+    """Runs side by side, drawn so that their differences show.
+
+    Panels: speed with the limit and the first run's reference [km/h]; each run's speed
+    error ``v − v_ref`` [km/h] (curves that coincide above separate here); the command
+    [kN]; and, with ``s_stop_m`` on a distance axis, a zoom on the last ``zoom_m`` metres
+    before the stopping point with each run's final position error in cm in the legend.
+    ``x`` is ``"s_m"`` (stopping tasks) or ``"t_s"`` (cruise tasks, which their papers
+    plot against time).
+    """
+    if not runs:
+        raise ValueError("runs must contain at least one labelled DataFrame")
+    if x not in ("s_m", "t_s"):
+        raise ValueError(f"x must be 's_m' or 't_s', got {x!r}")
+    zoom = s_stop_m is not None and x == "s_m"
+    ratios = [2.6, 1.3, 1.3] + ([1.8] if zoom else [])
+    fig, axes = new_figure((9, 2.1 * sum(ratios)), len(ratios), 1, height_ratios=ratios)
+    ax_v, ax_e, ax_u = axes[:3]
+    for ax in axes[1:3]:
+        ax.sharex(ax_v)
+    first = next(iter(runs.values()))
+    ax_v.plot(first[x], first["v_limit_mps"] * 3.6, color="red", lw=1.0, ls="--", label="limit")
+    ax_v.plot(first[x], first["v_ref_mps"] * 3.6, color="black", lw=1.0, ls=":", label="reference")
+    for i, (label, df) in enumerate(runs.items()):
+        style = {"lw": 1.3, "ls": ("-", "--", "-.", ":")[i % 4], "label": label}
+        ax_v.plot(df[x], df["v_mps"] * 3.6, **style)
+        ax_e.plot(df[x], (df["v_mps"] - df["v_ref_mps"]) * 3.6, **style)
+        ax_u.plot(df[x], df["u_cmd_N"] / 1e3, **style)
+    ax_v.set(ylabel="speed [km/h]", title=title)
+    ax_v.set_ylim(bottom=0)
+    ax_e.set_ylabel("v − v_ref [km/h]")
+    ax_u.set_ylabel("command [kN]")
+    ax_u.set_xlabel("distance [m]" if x == "s_m" else "time [s]")
+    for ax in (ax_e, ax_u):
+        ax.axhline(0, color="grey", lw=0.6)
+    ax_v.legend(loc="best", fontsize=8)
+    if zoom:
+        ax_z = axes[3]
+        for i, (label, df) in enumerate(runs.items()):
+            near = df[df["s_m"] > s_stop_m - zoom_m]
+            err_cm = 100.0 * (float(df["s_m"].iloc[-1]) - s_stop_m)
+            ax_z.plot(
+                near["s_m"] - s_stop_m,
+                near["v_mps"] * 3.6,
+                lw=1.3,
+                ls=("-", "--", "-.", ":")[i % 4],
+                label=f"{label}: stops {err_cm:+.1f} cm",
+            )
+        ax_z.axvline(0.0, color="grey", lw=0.8)
+        ax_z.set(xlabel="position − stopping point [m]", ylabel="speed [km/h]")
+        ax_z.set_title(f"last {zoom_m:g} m", fontsize=9)
+        ax_z.legend(loc="best", fontsize=8)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
 def time_series_figure(df: pd.DataFrame, columns: list[str], *, title: str = "") -> Figure:
     """Stacked time series of the given DataFrame columns against ``t_s``."""
-    fig, axes = new_figure(len(columns), 1, (9, 1.8 * len(columns) + 1), sharex=True, squeeze=False)
+    fig, axes = new_figure((9, 1.8 * len(columns) + 1), len(columns), 1, sharex=True, squeeze=False)
     for ax, col in zip(axes[:, 0], columns, strict=True):
         ax.plot(df["t_s"], df[col], lw=1.0)
         ax.set_ylabel(col)
@@ -98,7 +180,7 @@ def dmc_adjustment_figure(
     run = df.iloc[:-1]  # the last row is the final state, not a control step
     t = run["t_s"]
     fig, axes = new_figure(
-        4, 1, (9, 8), sharex=True, gridspec_kw={"height_ratios": [2, 1, 1.4, 1.2]}
+        (9, 8), 4, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1, 1.4, 1.2]}
     )
     ax_v, ax_e, ax_a, ax_h = axes
     ax_v.plot(t, run["v_ref_mps"] * 3.6, color="black", lw=1.0, ls=":", label="reference")

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from train_envs.plotting import new_figure
 from tuners.mowoa import nondominated
 
 __all__ = [
@@ -82,7 +83,7 @@ def hypervolume_figure(
 ) -> Figure:
     """Convergence: normalised hypervolume vs generation (see :func:`hypervolume_history`)."""
     h = hypervolume_history(df, objectives, ref_offset)
-    fig = Figure(figsize=(6, 4), layout="constrained")
+    fig, _ = new_figure((6, 4), layout="constrained")
     ax = fig.add_subplot()
     ax.plot(h["generation"], h["hypervolume"], marker="o")
     ax.set_xlabel("generation")
@@ -105,7 +106,7 @@ def pareto_front_figure(
     n = len(pairs)
     ncol = min(3, n)
     nrow = int(np.ceil(n / ncol))
-    fig = Figure(figsize=(4.2 * ncol, 3.6 * nrow), layout="constrained")
+    fig, _ = new_figure((4.2 * ncol, 3.6 * nrow), layout="constrained")
     axes = fig.subplots(nrow, ncol, squeeze=False).ravel()
     par = feas[feas["pareto"]] if "pareto" in feas else feas.iloc[0:0]
     sel = feas[feas["selected"]] if "selected" in feas else feas.iloc[0:0]
@@ -150,7 +151,7 @@ def parallel_coordinates_figure(
     V = data[cols].to_numpy(float)
     lo, hi = V.min(axis=0), V.max(axis=0)
     Vn = (V - lo) / np.where(hi > lo, hi - lo, 1.0)
-    fig = Figure(figsize=(max(6.0, 1.1 * len(cols)), 4.5), layout="constrained")
+    fig, _ = new_figure((max(6.0, 1.1 * len(cols)), 4.5), layout="constrained")
     ax = fig.add_subplot()
     xs = np.arange(len(cols))
     t = data["tchebycheff"].to_numpy(float) if "tchebycheff" in data else np.zeros(len(data))
