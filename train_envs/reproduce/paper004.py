@@ -72,7 +72,10 @@ def compare_paper004(
             row[name] = means[name][col]
         for name in drivers:
             if name != "fuzzy_pid":
-                row[f"{name}_vs_fpid_pct"] = 100.0 * (means[name][col] - base[col]) / base[col]
+                # a change relative to a zero reference (Fuzzy-PID on time) is not defined
+                ref = base[col]
+                rel = 100.0 * (means[name][col] - ref) / ref if abs(ref) > 1e-9 else np.nan
+                row[f"{name}_vs_fpid_pct"] = rel
         row["paper_mowoa_vs_fpid_pct"] = paper
         rows.append(row)
     out = pd.DataFrame(rows)
