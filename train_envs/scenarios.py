@@ -238,13 +238,7 @@ def reference_train(train: TrainParams, traction_fraction: float = 0.85) -> Trai
     curves are therefore planned with a margin; 15 % by default, 25 % for paper 000
     (whose 0.2 m/s² wind alone takes 19 % of the 6-car train's traction).
     """
-    check_range("traction_fraction", traction_fraction, 0.1, 1.0)
-    return replace(
-        train,
-        max_traction_force_N=train.max_traction_force_N * traction_fraction,
-        max_traction_power_W=train.max_traction_power_W * traction_fraction,
-        max_accel_mps2=train.max_accel_mps2 * traction_fraction,
-    )
+    return train.with_traction_fraction(traction_fraction)
 
 
 # ======================================================================= paper scenarios
