@@ -449,7 +449,52 @@ def train_from_ttobench(data: dict[str, Any]) -> TrainParams:
         regen_efficiency=efficiency("efficiency reg brake", "max reg braking power"),
         n_cars=n_cars,
         source=f"TTOBench v1.3 train {name} (BSD-2-Clause, Kouzoupis, Pendharkar, Corman 2023)",
+        **rolling_stock_from_ttobench(data),
     )
+
+
+#: optional fields of a TTOBench-style train document read by :func:`rolling_stock_from_ttobench`
+TTOBENCH_CURVE_FIELDS = {
+    "traction effort curve": "traction_curve",
+    "reg braking effort curve": "brake_curve",
+}
+
+
+def rolling_stock_from_ttobench(data: dict[str, Any]) -> dict[str, Any]:
+    """The :class:`TrainParams` fields of the optional rolling-stock entries of a
+    TTOBench-style train document (TTOBench v1.3/v1.4 files have none of them):
+
+    * ``"traction effort curve"``, ``"reg braking effort curve"``: tables in the style of
+      TTOBench's loss maps, ``{"units": {"velocity": "km/h", "force": "kN"}, "values":
+      [[v, F], ...]}`` (any speed and force unit of the loader);
+    * ``"length"``: ``{"unit": "m", "value": L}``, the train length.
+    """
+    out: dict[str, Any] = {}
+    for key, attr in TTOBENCH_CURVE_FIELDS.items():
+        entry = data.get(key)
+        if entry is None:
+            continue
+        try:
+            units, rows = entry["units"], entry["values"]
+            vu, fu = str(units["velocity"]), str(units["force"])
+        except (KeyError, TypeError) as exc:
+            raise ValueError(
+                f"TTOBench train field {key!r} must have 'units' (velocity, force) and 'values'"
+            ) from exc
+        pairs = []
+        for row in rows:
+            if len(row) != 2:
+                raise ValueError(f"TTOBench train field {key!r}: rows must be [speed, force]")
+            pairs.append((_to_si(float(row[0]), vu, key), _to_si(float(row[1]), fu, key)))
+        out[attr] = EffortCurve.from_pairs(
+            pairs, "m/s", "N", source=f"TTOBench field {key!r} ({vu}, {fu})"
+        )
+    if "length" in data:
+        value, unit = _unit_value(data["length"], "length")
+        if unit != "m":
+            raise ValueError(f"TTOBench train field 'length': unit must be 'm', got {unit!r}")
+        out["length_m"] = value
+    return out
 
 
 TTOBENCH_TRAIN_FILES = {
