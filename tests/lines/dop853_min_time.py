@@ -151,6 +151,8 @@ def min_running_time(
     opts = dict(epsabs=0.0, epsrel=1e-11, limit=200)
     total = 0.0
     for s0, s1 in fine:
+        if s1 - s0 <= 1e-9:
+            continue
         m = 0.5 * (s0 + s1)
         if E_f(m) <= E_b(m):
             if E_f(s0) > 0.0:
