@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from dop853_min_time import min_running_time
@@ -112,3 +114,29 @@ def test_long_train_profile_respects_every_limit_under_the_train() -> None:
     # the rule costs running time against the point train
     t_long = minimum_time_profile(track, train, ds=1.0).running_time_s
     assert t_long > point.running_time_s * 1.005
+
+
+def test_observation_previews_the_limit_governing_the_train() -> None:
+    """The env's ``limit_ahead_i`` features read the rear-clearance rule for the
+    train's length (Section000: 80 km/h from 1200 m, 100 km/h again from 1800 m)."""
+    import gymnasium as gym
+
+    env = gym.make("TrainEnvs/Section000-v0")
+    env.reset(seed=0)
+    b = env.unwrapped
+    sc = b.scenario
+    long = sc.with_overrides(train=replace(sc.train, length_m=120.0))
+    obs_type = b.observation_type
+    obs_type.bind(long, b.loop)
+    b.loop.plant.reset(1850.0, 20.0)
+    obs = obs_type.observe()
+    names = b.observation_names
+    lim = np.array([obs[i] for i, n in enumerate(names) if n.startswith("limit_ahead_")])
+    offsets = np.linspace(0.0, float(b.config["preview_m"]), lim.size)
+    v_scale = obs_type._v_scale
+    expected = effective_limit_fn(sc.track, 120.0)(1850.0 + offsets) / v_scale
+    np.testing.assert_allclose(lim, expected.astype(np.float32), rtol=1e-6)
+    # head at 1850 m, rear at 1730 m: still under the 80 km/h section
+    assert lim[0] == pytest.approx(80 * KMH / v_scale, rel=1e-6)
+    assert sc.track.speed_limit_at(1850.0) == pytest.approx(100 * KMH)
+    env.close()
