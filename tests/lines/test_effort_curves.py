@@ -31,23 +31,18 @@ DMU_CURVE_KMH_KN = [
 ]
 
 
+#: the test unit's other parameters (SI units), a data table
+DMU = {
+    "name": "test_dmu", "mass_kg": 140e3, "rotating_mass_factor": 0.08,
+    "davis_a_N": 2.2e3, "davis_b_Ns_per_m": 40.0, "davis_c_Ns2_per_m2": 6.0,
+    "max_traction_force_N": 150e3, "max_brake_force_N": 120e3,
+    "service_decel_mps2": 0.7, "max_speed_mps": 140 * KMH,
+}  # fmt: skip
+
+
 def dmu_train(**kw) -> TrainParams:
     curve = EffortCurve.from_pairs(DMU_CURVE_KMH_KN, "km/h", "kN")
-    base = dict(
-        name="test_dmu",
-        mass_kg=140e3,
-        rotating_mass_factor=0.08,
-        davis_a_N=2.2e3,
-        davis_b_Ns_per_m=40.0,
-        davis_c_Ns2_per_m2=6.0,
-        max_traction_force_N=150e3,
-        traction_curve=curve,
-        max_brake_force_N=120e3,
-        service_decel_mps2=0.7,
-        max_speed_mps=140 * KMH,
-    )
-    base.update(kw)
-    return TrainParams(**base)
+    return TrainParams(**{**DMU, "traction_curve": curve, **kw})
 
 
 #: a line with gradients and several limits (m, km/h) / (m, permil)
@@ -56,15 +51,20 @@ GRADIENTS = [(0.0, 4.0), (1500.0, 12.0), (3000.0, -6.0), (4500.0, 0.0), (6500.0,
 LENGTH = 9500.0
 
 
-def effort_line() -> Track:
+def section_track(name: str, length_m: float, limits_kmh, gradients_permil) -> Track:
+    """A line from ``(start m, limit km/h)`` and ``(start m, gradient permil)`` sections."""
     return Track(
-        name="effort_test_line",
-        stops_m=[0.0, LENGTH],
-        speed_limit_positions_m=[p for p, _ in LIMITS],
-        speed_limits_mps=[v * KMH for _, v in LIMITS],
-        gradient_positions_m=[p for p, _ in GRADIENTS],
-        gradients_permil=[g for _, g in GRADIENTS],
+        name=name,
+        stops_m=[0.0, length_m],
+        speed_limit_positions_m=[p for p, _ in limits_kmh],
+        speed_limits_mps=[v * KMH for _, v in limits_kmh],
+        gradient_positions_m=[p for p, _ in gradients_permil],
+        gradients_permil=[g for _, g in gradients_permil],
     )
+
+
+def effort_line() -> Track:
+    return section_track("effort_test_line", LENGTH, LIMITS, GRADIENTS)
 
 
 def reference_time(train: TrainParams, limits_kmh=LIMITS) -> float:

@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from dop853_min_time import min_running_time
+from test_effort_curves import section_track
 
 from train_envs.lines import Track, minimum_time_profile, time_supplemented_profile
 from train_envs.lines.limits import (
@@ -27,30 +28,20 @@ GRADIENTS = [(0.0, 3.0), (2500.0, -2.0), (4200.0, 6.0)]
 
 
 def _track() -> Track:
-    return Track(
-        name="limit_steps",
-        stops_m=[0.0, LINE_M],
-        speed_limit_positions_m=[p for p, _ in LIMITS],
-        speed_limits_mps=[v * KMH for _, v in LIMITS],
-        gradient_positions_m=[p for p, _ in GRADIENTS],
-        gradients_permil=[g for _, g in GRADIENTS],
-    )
+    return section_track("limit_steps", LINE_M, LIMITS, GRADIENTS)
+
+
+#: the long train's parameters (SI units), a data table
+LONG_EMU = {
+    "name": "long_emu", "mass_kg": 400e3, "rotating_mass_factor": 0.06,
+    "davis_a_N": 5e3, "davis_b_Ns_per_m": 60.0, "davis_c_Ns2_per_m2": 9.0,
+    "max_traction_force_N": 300e3, "max_traction_power_W": 4e6,
+    "max_brake_force_N": 300e3, "service_decel_mps2": 0.6,
+}  # fmt: skip
 
 
 def _train(length_m: float) -> TrainParams:
-    return TrainParams(
-        name="long_emu",
-        mass_kg=400e3,
-        rotating_mass_factor=0.06,
-        davis_a_N=5e3,
-        davis_b_Ns_per_m=60.0,
-        davis_c_Ns2_per_m2=9.0,
-        max_traction_force_N=300e3,
-        max_traction_power_W=4e6,
-        max_brake_force_N=300e3,
-        service_decel_mps2=0.6,
-        length_m=length_m,
-    )
+    return TrainParams(**LONG_EMU, length_m=length_m)
 
 
 def test_effective_limit_table_is_the_rear_clearance_rule() -> None:
