@@ -165,3 +165,46 @@ def test_plant_never_exceeds_the_table(order: int) -> None:
 
     sol = solve_ivp(rhs, (0.0, 600.0), [0.0], method="DOP853", rtol=1e-10, atol=1e-10)
     assert plant.v == pytest.approx(float(sol.y[0, -1]), rel=5e-4)
+
+
+def test_tabulated_single_car_paths_agree() -> None:
+    """With traction and brake tables, the single-car float path equals the general
+    numpy path, and its compiled twin equals the Python step bit for bit (the tables
+    enter through the saturated command, the same in all three)."""
+    from train_envs._jit import enabled, implementation
+    from train_envs.plants.lookup import gradient_table
+    from train_envs.plants.single_car import SINGLE_CAR_STEP
+
+    brake = EffortCurve.from_pairs([(0.0, 0.0), (8.0, 90.0), (60.0, 110.0), (140.0, 45.0)])
+    train = dmu_train(brake_curve=brake, max_friction_brake_force_N=30e3)
+    grad = gradient_table(effort_line())
+    act = ActuatorParams(order=1, tau_s=0.4, dead_time_s=0.6)
+
+    def make() -> TrainPlant:
+        p = TrainPlant(train, grad, n_cars=1, dt_sim_s=0.01, actuator=act)
+        p.reset(100.0, 0.0)
+        return p
+
+    fast, slow = make(), make()
+    slow._scalar_ok = False
+    assert fast._scalar_ok
+    comp = None
+    if enabled():
+        comp = make()
+        comp._kern = implementation(SINGLE_CAR_STEP, compiled_twin=True)
+        fast._kern = implementation(SINGLE_CAR_STEP, compiled_twin=False)
+    rng = np.random.default_rng(5)
+    for k in range(900):
+        u = float(rng.uniform(-1.3, 1.3)) * 150e3 if k < 600 else (-3e5 if k < 750 else 3e5)
+        v = fast.v
+        for p in (fast, slow) if comp is None else (fast, slow, comp):
+            p.step(u, 0.2)
+        expect = min(max(u, -train.max_brake_N(v)), train.max_traction_N(v))
+        assert fast.last_command == expect
+        # (the general path's state agrees to rounding, so its speed and command too)
+        assert float(slow.last_command[0]) == pytest.approx(expect, rel=1e-11, abs=1e-6)
+        np.testing.assert_allclose(fast.z, slow.z, rtol=1e-12, atol=1e-9)
+        assert fast.stopped == slow.stopped
+        if comp is not None:
+            assert comp.z.tolist() == fast.z.tolist(), k
+            assert (comp.t, comp.stopped) == (fast.t, fast.stopped)
