@@ -30,6 +30,7 @@ from train_envs.lines import (
     paper002_speed_command,
     time_supplemented_profile,
 )
+from train_envs.lines.limits import effective_limit_fn
 from train_envs.lines.profiles import paper003_speed_command
 from train_envs.plants.lookup import PiecewiseLinear, gradient_table
 from train_envs.plants.multi_car import ActuatorParams, TrainPlant
@@ -121,7 +122,8 @@ class Scenario:
 
     # --------------------------------------------------------------- helpers
     def speed_limit_at(self, s: float) -> float:
-        return float(self.track.speed_limit_at(s))
+        """The limit governing the train with its head at ``s`` (rear-clearance rule)."""
+        return float(effective_limit_fn(self.track, self.train.length_m)(s))
 
     def gradient_at(self, s: float) -> float:
         """Equivalent gradient [‰] at ``s`` (cached look-up table of the track)."""

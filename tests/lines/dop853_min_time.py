@@ -10,9 +10,10 @@ deceleration ``b`` is analytic, ``E_b(s) = min_j (E_cap,j + b (p_j − s))`` ove
 section starts ``p_j ≥ s`` and the stop.  The profile is ``min(E_f, E_b, E_cap)`` and
 the running time ``∫ ds / v`` is summed piece by piece between the sections and the
 crossings of the two curves: ``quad`` on the forward pieces (in ``u = √(s − s₀)``
-from standstill, which removes the ``1/√s`` singularity), the exact ``2 Δs / (v₁ + v₂)`` on the braking
-pieces.  These are the conventions of the library's minimum-time profile (service
-braking, forces at the train's speed, gradient force ``m g sin(atan(i/1000))``).
+from standstill, which removes the ``1/√s`` singularity), the exact
+``2 Δs / (v₁ + v₂)`` on the braking pieces.  These are the conventions of the
+library's minimum-time profile (service braking, forces at the train's speed, gradient
+force ``m g sin(atan(i/1000))``).
 """
 
 from __future__ import annotations

@@ -108,8 +108,9 @@ def test_long_train_profile_respects_every_limit_under_the_train() -> None:
 
 
 def test_observation_previews_the_limit_governing_the_train() -> None:
-    """The env's ``limit_ahead_i`` features read the rear-clearance rule for the
-    train's length (Section000: 80 km/h from 1200 m, 100 km/h again from 1800 m)."""
+    """The env's ``limit_ahead_i`` features and the scenario's limit read the
+    rear-clearance rule for the train's length (Section000: 80 km/h from 1200 m, 100 km/h
+    again from 1800 m)."""
     import gymnasium as gym
 
     env = gym.make("TrainEnvs/Section000-v0")
@@ -130,4 +131,7 @@ def test_observation_previews_the_limit_governing_the_train() -> None:
     # head at 1850 m, rear at 1730 m: still under the 80 km/h section
     assert lim[0] == pytest.approx(80 * KMH / v_scale, rel=1e-6)
     assert sc.track.speed_limit_at(1850.0) == pytest.approx(100 * KMH)
+    # the runner's recorded limit (and the controllers' observation) read the same rule
+    assert long.speed_limit_at(1850.0) == pytest.approx(80 * KMH)
+    assert long.speed_limit_at(1925.0) == sc.speed_limit_at(1925.0) == pytest.approx(100 * KMH)
     env.close()

@@ -58,11 +58,10 @@ def effective_limit_sections(
     return cand[keep], vals[keep]
 
 
-_TABLES: dict[tuple[int, float], tuple[object, tuple[np.ndarray, np.ndarray]]] = {}
+_TABLES: dict[tuple[int, float], tuple[object, tuple[np.ndarray, np.ndarray], Callable]] = {}
 
 
-def effective_limit_table(track: _HasLimits, length_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Cached :func:`effective_limit_sections` of a track's limits (read-only arrays)."""
+def _entry(track: _HasLimits, length_m: float):
     key = (id(track), float(length_m))
     hit = _TABLES.get(key)
     if hit is None or hit[0] is not track:
@@ -73,21 +72,12 @@ def effective_limit_table(track: _HasLimits, length_m: float) -> tuple[np.ndarra
         )
         pos.setflags(write=False)
         val.setflags(write=False)
-        _TABLES[key] = hit = (track, (pos, val))
-    return hit[1]
+        _TABLES[key] = hit = (track, (pos, val), _step_function(pos, val))
+    return hit
 
 
-def effective_limit_at(track: _HasLimits, length_m: float, s):
-    """``V_L(s)`` [m/s] for a head position ``s`` [m] (float or array)."""
-    return effective_limit_fn(track, length_m)(s)
-
-
-def effective_limit_fn(track: _HasLimits, length_m: float) -> Callable:
-    """The function ``s ↦ V_L(s)`` (floats and arrays); the track's own
-    ``speed_limit_at`` for a point train."""
-    if length_m == 0.0:
-        return track.speed_limit_at
-    pos, val = effective_limit_table(track, length_m)
+def _step_function(pos: np.ndarray, val: np.ndarray) -> Callable:
+    """``s ↦ val[i]`` on ``[pos[i], pos[i+1])`` (the first value before ``pos[0]``)."""
     pl, vl = pos.tolist(), val.tolist()
 
     def limit_at(s):
@@ -98,6 +88,24 @@ def effective_limit_fn(track: _HasLimits, length_m: float) -> Callable:
         return val[np.maximum(i - 1, 0)]
 
     return limit_at
+
+
+def effective_limit_table(track: _HasLimits, length_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cached :func:`effective_limit_sections` of a track's limits (read-only arrays)."""
+    return _entry(track, length_m)[1]
+
+
+def effective_limit_at(track: _HasLimits, length_m: float, s):
+    """``V_L(s)`` [m/s] for a head position ``s`` [m] (float or array)."""
+    return effective_limit_fn(track, length_m)(s)
+
+
+def effective_limit_fn(track: _HasLimits, length_m: float) -> Callable:
+    """The function ``s ↦ V_L(s)`` (floats and arrays; cached per track and length);
+    the track's own ``speed_limit_at`` for a point train."""
+    if length_m == 0.0:
+        return track.speed_limit_at
+    return _entry(track, length_m)[2]
 
 
 __all__ = [
