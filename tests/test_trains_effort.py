@@ -235,3 +235,10 @@ def test_ttobench_document_with_tables_and_length() -> None:
     )
     with pytest.raises(ValueError, match="rows"):
         train_from_ttobench(bad)
+
+
+def test_envelope_rejects_bad_limits() -> None:
+    with pytest.raises(ValueError, match="brake_force_N"):
+        ForceEnvelope(traction_force_N=1e5, brake_force_N=-1.0)
+    with pytest.raises(ValueError, match="traction_power_W"):
+        ForceEnvelope(traction_force_N=1e5, brake_force_N=1e5, traction_power_W=0.0)

@@ -40,6 +40,7 @@ import numpy as np
 
 from train_envs.plants.lookup import PiecewiseLinear
 from train_envs.plants.physics import davis_N, davis_sq_N
+from train_envs.validation import check_nonnegative, check_positive
 
 #: speed units of the table readers, in m/s per unit
 SPEED_UNITS = {"m/s": 1.0, "km/h": 1.0 / 3.6}
@@ -213,6 +214,10 @@ class ForceEnvelope:
     _b: tuple = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        for name in ("traction_force_N", "brake_force_N", "friction_brake_N"):
+            check_nonnegative(name, getattr(self, name))
+        for name in ("traction_power_W", "accel_force_N", "brake_power_W", "decel_force_N"):
+            check_positive(name, getattr(self, name), allow_inf=True)
         fin = math.isfinite
         a, b, c = self.davis
         object.__setattr__(
