@@ -30,6 +30,7 @@ from train_envs.lines import (
     paper002_speed_command,
     time_supplemented_profile,
 )
+from train_envs.lines.limits import effective_limit_fn
 from train_envs.lines.profiles import paper003_speed_command
 from train_envs.plants.lookup import PiecewiseLinear, gradient_table
 from train_envs.plants.multi_car import ActuatorParams, TrainPlant
@@ -121,7 +122,8 @@ class Scenario:
 
     # --------------------------------------------------------------- helpers
     def speed_limit_at(self, s: float) -> float:
-        return float(self.track.speed_limit_at(s))
+        """The limit governing the train with its head at ``s`` (rear-clearance rule)."""
+        return float(effective_limit_fn(self.track, self.train.length_m)(s))
 
     def gradient_at(self, s: float) -> float:
         """Equivalent gradient [‰] at ``s`` (cached look-up table of the track)."""
@@ -238,13 +240,7 @@ def reference_train(train: TrainParams, traction_fraction: float = 0.85) -> Trai
     curves are therefore planned with a margin; 15 % by default, 25 % for paper 000
     (whose 0.2 m/s² wind alone takes 19 % of the 6-car train's traction).
     """
-    check_range("traction_fraction", traction_fraction, 0.1, 1.0)
-    return replace(
-        train,
-        max_traction_force_N=train.max_traction_force_N * traction_fraction,
-        max_traction_power_W=train.max_traction_power_W * traction_fraction,
-        max_accel_mps2=train.max_accel_mps2 * traction_fraction,
-    )
+    return train.with_traction_fraction(traction_fraction)
 
 
 # ======================================================================= paper scenarios

@@ -5,10 +5,12 @@ N/t, N/kN and km/h; they are converted once here, with the paper's original numb
 kept in the ``source`` text of each set.
 
 Resistance (Davis) is the force ``R(v) = a + b v + c v²`` [N] on the whole train.
-The traction force envelope is the usual hyperbola: constant force up to the base
-speed, then power-limited, ``F_max(v) = min(F_t, P_t / v)``; the braking envelope is the
-same with the regenerative-brake power plus the (not power-limited) friction brake
-(TTOBench convention).
+The force envelope (:class:`~train_envs.effort.ForceEnvelope`, :attr:`TrainParams.envelope`)
+is ``F_max(v) = min(F_t, T(v), P_t / v, M' a_max + R(v))`` with an optional tabulated
+tractive-effort curve ``T`` (:class:`~train_envs.effort.EffortCurve`); without a table
+it is the usual hyperbola, constant force up to the base speed, then power-limited.
+The braking envelope is the same with the regenerative brake (optional table, power)
+plus the (not power-limited) friction brake (TTOBench convention).
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from train_envs.plants.physics import davis_N, davis_sq_N
+from train_envs.effort import EffortCurve, ForceEnvelope
+from train_envs.plants.physics import davis_N
 from train_envs.validation import check_choice, check_nonnegative, check_positive, check_range
 
 G = 9.81  # m/s², gravitational acceleration used throughout
@@ -58,8 +61,11 @@ class TrainParams:
         rotating_mass_factor: ρ, so that the inertial mass is ``M (1 + ρ)``.
         davis_a_N, davis_b_Ns_per_m, davis_c_Ns2_per_m2: Davis coefficients of the
             whole train, ``R(v) = a + b v + c v²`` with v in m/s.
-        max_traction_force_N, max_traction_power_W: traction envelope.
-        max_brake_force_N, max_brake_power_W: electric (regenerative) brake envelope.
+        max_traction_force_N, max_traction_power_W: traction envelope (with a
+            ``traction_curve``, ``max_traction_force_N`` is a cap on it: give the
+            curve's peak for the curve alone).
+        max_brake_force_N, max_brake_power_W: electric (regenerative) brake envelope
+            (a cap on ``brake_curve`` where one is given).
         max_friction_brake_force_N: pneumatic/friction brake, not power-limited.
         max_accel_mps2, max_decel_mps2: comfort/adhesion limits (``inf`` = none).
         service_decel_mps2: deceleration used by reference profiles when braking.
@@ -71,6 +77,12 @@ class TrainParams:
         lead_car_aero: if True the ``c v²`` term acts on the lead car only (papers 002,
             003); otherwise resistance is split per car in proportion to mass (000).
         source: where the numbers come from, with the original units.
+        traction_curve: optional tabulated tractive effort (speed → force).
+        brake_curve: optional tabulated electric braking effort (speed → force); the
+            friction brake adds to it.
+        length_m: train length [m] (head to rear); 0 = a point train.  Reference
+            profiles and the limit preview apply a higher speed limit only once the
+            rear has cleared the lower one (:func:`train_envs.lines.limits.effective_limit_table`).
     """
 
     name: str
@@ -95,6 +107,9 @@ class TrainParams:
     coupler: CouplerParams = field(default_factory=CouplerParams)
     lead_car_aero: bool = False
     source: str = ""
+    traction_curve: EffortCurve | None = None
+    brake_curve: EffortCurve | None = None
+    length_m: float = 0.0
 
     def __post_init__(self) -> None:
         check_positive("mass_kg", self.mass_kg)
@@ -127,6 +142,15 @@ class TrainParams:
                 check_positive(f"car_masses_kg[{i}]", m)
             if not math.isclose(sum(self.car_masses_kg), self.mass_kg, rel_tol=1e-9):
                 raise ValueError("car_masses_kg must sum to mass_kg")
+        for name in ("traction_curve", "brake_curve"):
+            curve = getattr(self, name)
+            if curve is not None and not isinstance(curve, EffortCurve):
+                raise ValueError(
+                    f"{name} must be an EffortCurve or None, got {type(curve).__name__}"
+                )
+        if self.traction_curve is not None and max(self.traction_curve.forces_N) <= 0.0:
+            raise ValueError("traction_curve must have a positive force somewhere")
+        check_nonnegative("length_m", self.length_m)
 
     # ------------------------------------------------------------------ derived
     @property
@@ -142,31 +166,22 @@ class TrainParams:
         return (self.mass_kg / self.n_cars,) * self.n_cars
 
     @cached_property
-    def _traction_consts(self) -> tuple[float, float | None, float | None, float, float, float]:
-        """``(F_t, P_t, M'a_max, a, b, c)`` of the traction envelope, ``None`` for no limit.
-
-        Computed once per (frozen) parameter set: ``M'a_max`` is the product
-        ``inertial_mass_kg * max_accel_mps2``.
-        """
+    def envelope(self) -> ForceEnvelope:
+        """The force envelope of this (frozen) parameter set, built once: every force-bound
+        query of the library goes through it."""
         fin = math.isfinite
-        return (
-            self.max_traction_force_N,
-            self.max_traction_power_W if fin(self.max_traction_power_W) else None,
-            self.inertial_mass_kg * self.max_accel_mps2 if fin(self.max_accel_mps2) else None,
-            self.davis_a_N,
-            self.davis_b_Ns_per_m,
-            self.davis_c_Ns2_per_m2,
-        )
-
-    @cached_property
-    def _brake_consts(self) -> tuple[float, float | None, float, float | None]:
-        """``(F_b, P_b, F_fric, M'd_max)`` of the braking envelope, ``None`` for no limit."""
-        fin = math.isfinite
-        return (
-            self.max_brake_force_N,
-            self.max_brake_power_W if fin(self.max_brake_power_W) else None,
-            self.max_friction_brake_force_N,
-            self.inertial_mass_kg * self.max_decel_mps2 if fin(self.max_decel_mps2) else None,
+        m = self.inertial_mass_kg
+        return ForceEnvelope(
+            traction_force_N=self.max_traction_force_N,
+            brake_force_N=self.max_brake_force_N,
+            traction_curve=self.traction_curve,
+            traction_power_W=self.max_traction_power_W,
+            accel_force_N=m * self.max_accel_mps2 if fin(self.max_accel_mps2) else math.inf,
+            davis=(self.davis_a_N, self.davis_b_Ns_per_m, self.davis_c_Ns2_per_m2),
+            brake_curve=self.brake_curve,
+            brake_power_W=self.max_brake_power_W,
+            friction_brake_N=self.max_friction_brake_force_N,
+            decel_force_N=m * self.max_decel_mps2 if fin(self.max_decel_mps2) else math.inf,
         )
 
     def resistance_N(self, v: float) -> float:
@@ -176,102 +191,45 @@ class TrainParams:
         return math.copysign(r, v) if v != 0 else 0.0
 
     def max_traction_N(self, v: float) -> float:
-        """Traction envelope ``min(F_t, P_t / |v|, M a_max)`` [N]."""
-        f, P, MA, a, b, c = self._traction_consts
-        av = abs(v)
-        if av > 0 and P is not None:
-            f = min(f, P / av)
-        if MA is not None:
-            # M (1 + ρ) a_max + R(|v|), R(0) = 0 (as resistance_N)
-            f = min(f, MA + (davis_N(a, b, c, av) if av != 0 else 0.0))
-        return f
+        """Traction envelope ``min(F_t, T(|v|), P_t / |v|, M a_max + R(|v|))`` [N]
+        (:meth:`ForceEnvelope.traction_N`)."""
+        return self.envelope.traction_N(v)
+
+    def max_brake_N(self, v: float) -> float:
+        """Braking envelope (positive number) = power-limited electric + friction [N]
+        (:meth:`ForceEnvelope.brake_N`)."""
+        return self.envelope.brake_N(v)
 
     def envelope_N(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorised force bounds ``(−max_brake_N(v), max_traction_N(v))`` for speeds ``v``."""
-        F, P, MA, a, b, c = self._traction_consts
-        Fb, Pb, Ffr, MD = self._brake_consts
-        av = np.abs(np.asarray(v, dtype=float))
-        if av.ndim == 0:  # a scalar speed: numpy scalars, the same values as the arrays
-            lo, hi = self.envelope_N(av.reshape(1))
-            return lo[0], hi[0] if MA is not None else hi.reshape(())
-        pos = av > 0
-        # the power limits apply to moving speeds only: P/|v| there, +inf at standstill
-        if P is not None:
-            hi = np.minimum(F, np.divide(P, av, out=np.full(av.shape, np.inf), where=pos))
-        else:
-            hi = np.full(av.shape, F)
-        if MA is not None:
-            davis = davis_sq_N(a, b, c, av)  # (numpy's av**2 is av * av)
-            hi = np.minimum(hi, MA + np.where(pos, davis, 0.0))
-        if Pb is not None:
-            lo = np.minimum(Fb, np.divide(Pb, av, out=np.full(av.shape, np.inf), where=pos))
-            lo += Ffr
-        else:
-            lo = np.full(av.shape, Fb + Ffr)
-        if MD is not None:
-            lo = np.minimum(lo, MD)
-        return -lo, hi
+        """Vectorised force bounds ``(−max_brake_N(v), max_traction_N(v))`` for speeds ``v``
+        (:meth:`ForceEnvelope.bounds`)."""
+        return self.envelope.bounds(v)
 
     def envelope_lists(self, speeds: Sequence[float]) -> tuple[list[float], list[float]]:
-        """:meth:`envelope_N` for a short sequence of finite speeds, as Python lists.
-
-        Same arithmetic per speed as the vectorised form (results equal bit for bit),
-        without a dozen numpy calls on a horizon-sized array.
-        """
-        F, P, MA, a, b, c = self._traction_consts
-        Fb, Pb, Ffr, MD = self._brake_consts
-        lo_out: list[float] = []
-        hi_out: list[float] = []
-        for v in speeds:
-            av = abs(v)
-            hi = F
-            lo = Fb
-            if av > 0.0:
-                if P is not None:
-                    hi = min(hi, P / av)
-                if MA is not None:
-                    hi = min(hi, MA + davis_sq_N(a, b, c, av))
-                if Pb is not None:
-                    lo = min(lo, Pb / av)
-            elif MA is not None:
-                hi = min(hi, MA + 0.0)
-            lo += Ffr
-            if MD is not None:
-                lo = min(lo, MD)
-            lo_out.append(-lo)
-            hi_out.append(hi)
-        return lo_out, hi_out
+        """:meth:`envelope_N` for a short sequence of finite speeds, as Python lists, equal
+        to it bit for bit (:meth:`ForceEnvelope.bounds_lists`)."""
+        return self.envelope.bounds_lists(speeds)
 
     def envelope_box(self, v_lo: float, v_hi: float) -> tuple[float, float]:
         """A box inside the force envelope for every speed in ``[v_lo, v_hi]`` (``0 ≤ v_lo
-        ≤ v_hi``): ``(lo, hi)`` with ``−max_brake_N(v) ≤ lo`` and ``hi ≤ max_traction_N(v)``.
+        ≤ v_hi``): ``(lo, hi)`` with ``−max_brake_N(v) ≤ lo`` and ``hi ≤ max_traction_N(v)``
+        (:meth:`ForceEnvelope.box`).  A controller can test a plan against this box
+        with two evaluations and fall back to :meth:`envelope_lists` only when the box
+        is too tight."""
+        return self.envelope.box(v_lo, v_hi)
 
-        The brake envelope shrinks with speed (constant, then power-limited), so its
-        smallest magnitude is at ``v_hi``; the traction envelope ``min(F, P/v, M a_max +
-        R(v))`` is bounded below by ``min(F, P/v_hi, M a_max + R(v_lo))`` (``P/v``
-        falls, the Davis resistance ``R`` rises with speed: all coefficients are
-        non-negative).  Rounding is monotone, so the bounds hold in floating point too.
-        A controller can test a plan against this box with two evaluations and fall
-        back to :meth:`envelope_lists` only when the box is too tight.
-        """
-        F, P, MA, a, b, c = self._traction_consts
-        hi = F
-        if v_hi > 0.0 and P is not None:
-            hi = min(hi, P / v_hi)
-        if MA is not None:
-            hi = min(hi, MA + (davis_sq_N(a, b, c, v_lo) if v_lo > 0.0 else 0.0))
-        return -self.max_brake_N(v_hi), hi
-
-    def max_brake_N(self, v: float) -> float:
-        """Braking envelope (positive number) = power-limited electric + friction [N]."""
-        f, P, Ffr, MD = self._brake_consts
-        av = abs(v)
-        if av > 0 and P is not None:
-            f = min(f, P / av)
-        f += Ffr
-        if MD is not None:
-            f = min(f, MD)
-        return f
+    def with_traction_fraction(self, fraction: float) -> TrainParams:
+        """Copy with the traction envelope scaled by ``fraction``: force cap, power,
+        tractive-effort table and acceleration limit (a train planned with a margin)."""
+        check_range("traction_fraction", fraction, 0.1, 1.0)
+        curve = self.traction_curve
+        return replace(
+            self,
+            max_traction_force_N=self.max_traction_force_N * fraction,
+            max_traction_power_W=self.max_traction_power_W * fraction,
+            max_accel_mps2=self.max_accel_mps2 * fraction,
+            traction_curve=None if curve is None else curve.scaled(fraction),
+        )
 
     def with_mass_factor(self, factor: float) -> TrainParams:
         """Copy with the mass (load) scaled by ``factor``; Davis a, b scale with mass."""
@@ -491,7 +449,52 @@ def train_from_ttobench(data: dict[str, Any]) -> TrainParams:
         regen_efficiency=efficiency("efficiency reg brake", "max reg braking power"),
         n_cars=n_cars,
         source=f"TTOBench v1.3 train {name} (BSD-2-Clause, Kouzoupis, Pendharkar, Corman 2023)",
+        **rolling_stock_from_ttobench(data),
     )
+
+
+#: optional fields of a TTOBench-style train document read by :func:`rolling_stock_from_ttobench`
+TTOBENCH_CURVE_FIELDS = {
+    "traction effort curve": "traction_curve",
+    "reg braking effort curve": "brake_curve",
+}
+
+
+def rolling_stock_from_ttobench(data: dict[str, Any]) -> dict[str, Any]:
+    """The :class:`TrainParams` fields of the optional rolling-stock entries of a
+    TTOBench-style train document (TTOBench v1.3/v1.4 files have none of them):
+
+    * ``"traction effort curve"``, ``"reg braking effort curve"``: tables in the style of
+      TTOBench's loss maps, ``{"units": {"velocity": "km/h", "force": "kN"}, "values":
+      [[v, F], ...]}`` (any speed and force unit of the loader);
+    * ``"length"``: ``{"unit": "m", "value": L}``, the train length.
+    """
+    out: dict[str, Any] = {}
+    for key, attr in TTOBENCH_CURVE_FIELDS.items():
+        entry = data.get(key)
+        if entry is None:
+            continue
+        try:
+            units, rows = entry["units"], entry["values"]
+            vu, fu = str(units["velocity"]), str(units["force"])
+        except (KeyError, TypeError) as exc:
+            raise ValueError(
+                f"TTOBench train field {key!r} must have 'units' (velocity, force) and 'values'"
+            ) from exc
+        pairs = []
+        for row in rows:
+            if len(row) != 2:
+                raise ValueError(f"TTOBench train field {key!r}: rows must be [speed, force]")
+            pairs.append((_to_si(float(row[0]), vu, key), _to_si(float(row[1]), fu, key)))
+        out[attr] = EffortCurve.from_pairs(
+            pairs, "m/s", "N", source=f"TTOBench field {key!r} ({vu}, {fu})"
+        )
+    if "length" in data:
+        value, unit = _unit_value(data["length"], "length")
+        if unit != "m":
+            raise ValueError(f"TTOBench train field 'length': unit must be 'm', got {unit!r}")
+        out["length_m"] = value
+    return out
 
 
 TTOBENCH_TRAIN_FILES = {

@@ -11,7 +11,8 @@ state ``(t, s, v)`` after the env step; ``v_max`` is the line's maximum speed li
 ``dist_to_stop``         (s_end − s) / 1000 m; s_end: the stop (cruise runs: the profile end)
 ``slack``                (t_ref(s) − t) / 30 s, schedule slack
 ``grad_ahead_i``         equivalent gradient at s + i·preview_m/(n−1), / 30 ‰ (i < n)
-``limit_ahead_i``        speed limit at the same points / v_max
+``limit_ahead_i``        speed limit governing the train with its head at the same
+                         points (rear-clearance rule for its length) / v_max
 ``u``                    total command of the last control step / max traction force
 ``du``                   its change over the env step / (max traction force · dt ·
                          decision_interval)
@@ -29,6 +30,7 @@ from gymnasium import spaces
 
 from train_envs.envs.action import TuningAction
 from train_envs.envs.config import ObservationConfig
+from train_envs.lines.limits import effective_limit_fn
 from train_envs.plants.lookup import gradient_table
 from train_envs.scenarios import Scenario
 from train_envs.simulation import ClosedLoop
@@ -84,7 +86,7 @@ class TuningObservation:
         self._s_ref_fn = ref.s_ref
         self._t_at_s_fn = ref.profile.t_at_s
         self._grad_fn = gradient_table(sc.track)
-        self._limit_fn = sc.track.speed_limit_at
+        self._limit_fn = effective_limit_fn(sc.track, sc.train.length_m)
         self._u_scale = sc.train.max_traction_force_N
         self._du_scale = self._u_scale * sc.dt_ctrl_s * self._decision_interval
         self._loop = loop

@@ -20,7 +20,12 @@ Minimum-time profile (the classic forward/backward speed-profile construction):
 Every section start of the track is a grid node and the cap of a node is the lower of the
 limits of its two adjacent segments, so a limit drop is reached by braking *before* the
 section start and, since ``v`` is monotone within a segment, the profile never exceeds the
-limit anywhere. The train is a point mass (train length ignored for limit changes).
+limit anywhere.
+
+The limit is the one governing the whole train (:mod:`train_envs.lines.limits`): for a
+train of ``length_m = L > 0`` a higher limit applies only once the rear has cleared the
+lower one, ``V_L(s) = min V`` over ``[s − L, s]``, whose steps ``p_i + L`` are grid nodes
+too; the stored ``v_limit_mps`` is that governing limit.  Forces act on a point mass.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from train_envs.lines.commands import (
     paper003_speed_command,
     piecewise_speed_command,
 )
+from train_envs.lines.limits import effective_limit_fn, effective_limit_table
 from train_envs.lines.speed_profile import SpeedProfile
 from train_envs.lines.track import Track
 from train_envs.trains import TrainParams, get_train
@@ -105,6 +111,10 @@ def _prepare(
     n = max(math.ceil(length / ds - 1e-9), 4)
     grid = s_start + length * (np.arange(n + 1) / n)
     bp = track.breakpoints_m()
+    limit_at = track.speed_limit_at
+    if train.length_m > 0.0:  # the rear-clearance rule: steps also at p_i + L
+        bp = np.union1d(bp, effective_limit_table(track, train.length_m)[0])
+        limit_at = effective_limit_fn(track, train.length_m)
     grid = np.union1d(grid, bp[(bp > s_start) & (bp < s_stop)])
     keep = np.ones(grid.size, dtype=bool)
     keep[1:] = np.diff(grid) > _MERGE_TOL_M
@@ -112,7 +122,7 @@ def _prepare(
     grid[0], grid[-1] = s_start, s_stop
 
     mid = 0.5 * (grid[:-1] + grid[1:])
-    seg_limit = np.asarray(track.speed_limit_at(mid), float)
+    seg_limit = np.asarray(limit_at(mid), float)
     if margin_mps >= seg_limit.min():
         raise ValueError(
             f"margin_mps must be below the lowest speed limit on the run "
