@@ -50,6 +50,7 @@ from train_envs.controllers.models import (
     resistance_offset_accel,
 )
 from train_envs.mpc import LinearMPC, augmented_terminal_cost, dare_doubling, zoh
+from train_envs.mpc.blas import single_thread_blas
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.physics import davis_horner_N, davis_slope
 from train_envs.trains import G
@@ -104,8 +105,9 @@ class _TrainMPCBase(Controller):
         super().__init__(**params)
 
     def _apply_weights(self) -> None:
-        Q, R, P = self._weights()
-        self._mpc.set_weights(Q=Q, R=R, P=P)
+        with single_thread_blas():
+            Q, R, P = self._weights()
+            self._mpc.set_weights(Q=Q, R=R, P=P)
         self._weights_key = tuple(sorted(self._params.items()))
 
     def _terminal_weight(self, Q: np.ndarray, R: np.ndarray) -> np.ndarray | None:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from train_envs.mpc.blas import single_thread_blas
 from train_envs.mpc.description import _check_penalty_arg, _weight
 
 
@@ -450,13 +451,15 @@ class _AssemblyMixin:
                 if self._groups
                 else np.zeros(0)
             )
-        self._build_weights()
-        self._push_matrices()
+        with single_thread_blas():
+            self._build_weights()
+            self._push_matrices()
 
     def set_model(self, A: ArrayLike, B: ArrayLike, C: ArrayLike | None = None) -> None:
         """Replace the model (same dimensions; ``C=None`` keeps the current ``C``)."""
         A_, B_, C_ = self._check_model(A, B, self._C if C is None else C, (self.n, self.m, self.p))
         self._A, self._B, self._C = A_, B_, C_
         self._struct = None
-        self._build()
-        self._push_matrices()
+        with single_thread_blas():
+            self._build()
+            self._push_matrices()
