@@ -11,8 +11,9 @@ of ``compute`` under changing weights and of ``compute`` at constant weights, th
 ``set_params`` / constant-weight step (the acceptance figure), and the mean of
 ``set_params + compute`` under changing weights over the mean constant-weight step
 (what a change really costs, wherever the controller does the work). One untimed
-warm-up episode first (QPs built on first use). ``--profile NAME`` prints the cProfile
-of the changing-weight loop of one controller instead.
+warm-up episode first (QPs built on first use). ``--cpu-time`` times with this thread's
+CPU time instead of the wall clock (stabler on a busy machine). ``--profile NAME``
+prints the cProfile of the changing-weight loop of one controller instead.
 """
 
 from __future__ import annotations
@@ -51,12 +52,16 @@ def _loop(name: str) -> tuple[ClosedLoop, object]:
     return loop, ctrl
 
 
+#: the clock of every measurement (``--cpu-time``: this thread's CPU time)
+_clock = time.perf_counter
+
+
 def run(name: str, steps: int, seed: int = 0) -> dict[str, float]:
     """Medians [µs] of set_params and compute (changing and constant weights)."""
     loop, ctrl = _loop(name)
     specs = ctrl.tunable_params()
     rng = np.random.default_rng(seed)
-    clock = time.perf_counter
+    clock = _clock
     t_set: list[float] = []
     t_step: list[float] = []
     loop.reset(seed=0)
@@ -104,7 +109,11 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=400, help="control steps per loop")
     ap.add_argument("--controllers", nargs="*", default=list(CASES), choices=list(CASES))
     ap.add_argument("--profile", choices=list(CASES), help="profile one controller")
+    ap.add_argument("--cpu-time", action="store_true", help="time with the thread's CPU time")
     args = ap.parse_args()
+    if args.cpu_time:
+        global _clock
+        _clock = time.thread_time
     if args.profile:
         prof = cProfile.Profile()
         prof.enable()
