@@ -66,6 +66,9 @@ from train_envs.trains import G
 
 __all__ = ["TubeMPC"]
 
+#: the name this module gave the limiter (re-exported by ``controllers.tube_mpc``)
+_single_thread_blas = single_thread_blas
+
 
 class TubeMPC(Controller):
     """Paper 001's tube robust MPC ("rmpc"); see the module docstring for the equations.
