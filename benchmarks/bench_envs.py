@@ -20,6 +20,11 @@ flips every round; one warm-up episode of each first), with the median per-round
 random / constant; each round runs ``--steps`` env steps (episodes restart as needed,
 reset time included).
 
+``--osqp-tail [--steps 300]``: per id, the OSQP solve times of the controller's
+control steps (``solve_time_s`` of its info; the RSMPC sums a trigger's solves) at the
+constant default action and under random actions: steps that ran OSQP, the 99th
+percentile and the maximum over those, and how many took more than 2 ms.
+
 ``--compare OLD NEW [--rounds 5]`` runs the benchmark on two source trees (each a
 directory holding ``train_envs``) in subprocesses, alternating the order every round,
 and prints the median env steps/s of each and their ratio NEW/OLD per id.
@@ -170,6 +175,40 @@ def side_by_side(ids: list[str], steps: int, rounds: int) -> None:
         )
 
 
+def osqp_tail(ids: list[str], steps: int) -> None:
+    """OSQP solve-time tail per id at constant and random actions."""
+    print(f"| env id | action | steps with OSQP | p99 [ms] | max [ms] | > 2 ms |  ({steps} steps)")
+    print("|---|---|---:|---:|---:|---:|")
+    for env_id in ids:
+        env = gym.make(env_id)
+        ctrl = env.unwrapped.controller
+        space = env.action_space
+        space.seed(0)
+        times: list[float] = []
+        orig = ctrl.compute
+
+        def timed(obs, _orig=orig, _times=times):
+            out = _orig(obs)
+            t = float(out[1].get("solve_time_s", 0.0))
+            if t > 0.0:
+                _times.append(t)
+            return out
+
+        ctrl.compute = timed
+        acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
+        for name, act in acts.items():
+            times.clear()
+            _rate(env, act, steps, seed=0)
+            t = np.array(times) * 1e3
+            p99 = float(np.percentile(t, 99)) if t.size else 0.0
+            print(
+                f"| {env_id} | {name} | {t.size} | {p99:.2f} | {t.max(initial=0.0):.2f} | "
+                f"{int(np.sum(t > 2.0))} |",
+                flush=True,
+            )
+        env.close()
+
+
 def compare(
     old: str,
     new: str,
@@ -236,6 +275,7 @@ def main() -> None:
     ap.add_argument("--cpu-time", action="store_true", help="measure process CPU time")
     ap.add_argument("--side-by-side", action="store_true", help="constant vs random action per id")
     ap.add_argument("--steps", type=int, default=300, help="--side-by-side: steps per round")
+    ap.add_argument("--osqp-tail", action="store_true", help="OSQP solve-time tail per id")
     args = ap.parse_args()
     if args.cpu_time:
         global _clock
@@ -244,6 +284,9 @@ def main() -> None:
         compare(*args.compare, args.ids, args.episodes, args.noise, args.rounds, args.cpu_time)
         return
     ids = args.ids or registered_ids()
+    if args.osqp_tail:
+        osqp_tail(ids, args.steps)
+        return
     if args.side_by_side:
         side_by_side(ids, args.steps, args.rounds)
         return
