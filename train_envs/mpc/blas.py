@@ -11,6 +11,7 @@ the limit while the controllers' rebuilds inside it ask for it again.
 
 from __future__ import annotations
 
+import threading
 from types import TracebackType
 from typing import Any
 
@@ -20,21 +21,24 @@ _CONTROLLER: Any = None
 
 
 class _SingleThreadBLAS:
-    """Re-entrant context: the outermost ``with`` sets the limit, the others count."""
+    """Re-entrant context: the outermost ``with`` sets the limit, the others count (the
+    limit is process-wide, so the count is shared by all threads, under a lock)."""
 
     def __init__(self) -> None:
         self._depth = 0
         self._limit: Any = None
+        self._lock = threading.Lock()
 
     def __enter__(self) -> _SingleThreadBLAS:
-        if self._depth == 0:
-            global _CONTROLLER
-            if _CONTROLLER is None:
-                from threadpoolctl import ThreadpoolController
+        with self._lock:
+            if self._depth == 0:
+                global _CONTROLLER
+                if _CONTROLLER is None:
+                    from threadpoolctl import ThreadpoolController
 
-                _CONTROLLER = ThreadpoolController()
-            self._limit = _CONTROLLER.limit(limits=1, user_api="blas")
-        self._depth += 1
+                    _CONTROLLER = ThreadpoolController()
+                self._limit = _CONTROLLER.limit(limits=1, user_api="blas")
+            self._depth += 1
         return self
 
     def __exit__(
@@ -43,10 +47,11 @@ class _SingleThreadBLAS:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self._depth -= 1
-        if self._depth == 0:
-            limit, self._limit = self._limit, None
-            limit.restore_original_limits()
+        with self._lock:
+            self._depth -= 1
+            if self._depth == 0:
+                limit, self._limit = self._limit, None
+                limit.restore_original_limits()
 
 
 _SINGLE = _SingleThreadBLAS()
