@@ -23,6 +23,7 @@ import cProfile
 import pstats
 import statistics
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -52,16 +53,14 @@ def _loop(name: str) -> tuple[ClosedLoop, object]:
     return loop, ctrl
 
 
-#: the clock of every measurement (``--cpu-time``: this thread's CPU time)
-_clock = time.perf_counter
-
-
-def run(name: str, steps: int, seed: int = 0) -> dict[str, float]:
-    """Medians [µs] of set_params and compute (changing and constant weights)."""
+def run(
+    name: str, steps: int, seed: int = 0, clock: Callable[[], float] = time.perf_counter
+) -> dict[str, float]:
+    """Medians [µs] of set_params and compute (changing and constant weights), timed by
+    ``clock``."""
     loop, ctrl = _loop(name)
     specs = ctrl.tunable_params()
     rng = np.random.default_rng(seed)
-    clock = _clock
     t_set: list[float] = []
     t_step: list[float] = []
     loop.reset(seed=0)
@@ -111,13 +110,11 @@ def main() -> None:
     ap.add_argument("--profile", choices=list(CASES), help="profile one controller")
     ap.add_argument("--cpu-time", action="store_true", help="time with the thread's CPU time")
     args = ap.parse_args()
-    if args.cpu_time:
-        global _clock
-        _clock = time.thread_time
+    clock = time.thread_time if args.cpu_time else time.perf_counter
     if args.profile:
         prof = cProfile.Profile()
         prof.enable()
-        run(args.profile, args.steps)
+        run(args.profile, args.steps, clock=clock)
         prof.disable()
         pstats.Stats(prof).sort_stats("cumulative").print_stats(35)
         return
@@ -127,7 +124,7 @@ def main() -> None:
     )
     print("|---|---:|---:|---:|---:|---:|")
     for name in args.controllers:
-        r = run(name, args.steps)
+        r = run(name, args.steps, clock=clock)
         print(
             f"| `{name}` | {r['set_us']:.0f} | {r['step_us']:.0f} | {r['const_us']:.0f} | "
             f"{r['ratio']:.2f} | {r['total_ratio']:.2f} |",
