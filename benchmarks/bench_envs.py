@@ -13,6 +13,18 @@ solve time, reported separately), the plant step, the closed-loop runner around 
 features, reward, info) = the rest. One untimed warm-up episode runs first (QP
 construction on first use is a one-off cost).
 
+``--side-by-side [--steps 300] [--rounds 5]``: per id, env steps/s at the constant
+default action and under a new uniformly random action at every step (what an RL
+agent's exploration sends), measured alternately in the same process (the order
+flips every round; one warm-up episode of each first), with the median per-round ratio
+random / constant; each round runs ``--steps`` env steps (episodes restart as needed,
+reset time included).
+
+``--osqp-tail [--steps 300]``: per id, the OSQP solve times of the controller's
+control steps (``solve_time_s`` of its info; the RSMPC sums a trigger's solves) at the
+constant default action and under random actions: steps that ran OSQP, the 99th
+percentile and the maximum over those, and how many took more than 2 ms.
+
 ``--compare OLD NEW [--rounds 5]`` runs the benchmark on two source trees (each a
 directory holding ``train_envs``) in subprocesses, alternating the order every round,
 and prints the median env steps/s of each and their ratio NEW/OLD per id.
@@ -119,6 +131,84 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
     }
 
 
+def _rate(env: gym.Env, action, steps: int, seed: int) -> float:
+    """Env steps/s over ``steps`` steps; ``action()`` gives each step's action."""
+    env.reset(seed=seed)
+    t0 = _clock()
+    for _ in range(steps):
+        _, _, term, trunc, _ = env.step(action())
+        if term or trunc:
+            env.reset(seed=seed)
+    return steps / (_clock() - t0)
+
+
+def constant_action(a: np.ndarray):
+    """A callable returning ``a`` (the constant-action policy)."""
+    return lambda: a
+
+
+def side_by_side(ids: list[str], steps: int, rounds: int) -> None:
+    """Constant- and random-action env steps/s per id, alternating, with their ratio."""
+    print(
+        f"| env id | constant action [steps/s] | random action [steps/s] | random / constant "
+        f"|  ({rounds} rounds of {steps} steps)"
+    )
+    print("|---|---:|---:|---:|")
+    for env_id in ids:
+        env = gym.make(env_id)
+        space = env.action_space
+        space.seed(0)
+        acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
+        for act in acts.values():  # warm-up: QPs built on first use
+            _rate(env, act, steps // 4 + 1, seed=10_000)
+        rates: dict[str, list[float]] = {"constant": [], "random": []}
+        for r in range(rounds):
+            order = ("constant", "random") if r % 2 == 0 else ("random", "constant")
+            for name in order:
+                rates[name].append(_rate(env, acts[name], steps, seed=r))
+        env.close()
+        ratios = [b / a for a, b in zip(rates["constant"], rates["random"], strict=True)]
+        print(
+            f"| {env_id} | {statistics.median(rates['constant']):.0f} | "
+            f"{statistics.median(rates['random']):.0f} | {statistics.median(ratios):.2f} |",
+            flush=True,
+        )
+
+
+def osqp_tail(ids: list[str], steps: int) -> None:
+    """OSQP solve-time tail per id at constant and random actions."""
+    print(f"| env id | action | steps with OSQP | p99 [ms] | max [ms] | > 2 ms |  ({steps} steps)")
+    print("|---|---|---:|---:|---:|---:|")
+    for env_id in ids:
+        env = gym.make(env_id)
+        ctrl = env.unwrapped.controller
+        space = env.action_space
+        space.seed(0)
+        times: list[float] = []
+        orig = ctrl.compute
+
+        def timed(obs, _orig=orig, _times=times):
+            out = _orig(obs)
+            t = float(out[1].get("solve_time_s", 0.0))
+            if t > 0.0:
+                _times.append(t)
+            return out
+
+        ctrl.compute = timed
+        acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
+        for name, act in acts.items():
+            times.clear()
+            _rate(env, act, steps, seed=0)
+            t = np.array(times) * 1e3
+            p99 = float(np.percentile(t, 99)) if t.size else 0.0
+            print(
+                f"| {env_id} | {name} | {t.size} | {p99:.2f} | {t.max(initial=0.0):.2f} | "
+                f"{int(np.sum(t > 2.0))} |",
+                flush=True,
+            )
+        env.close()
+
+
 def compare(
     old: str,
     new: str,
@@ -183,6 +273,9 @@ def main() -> None:
     ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="two source trees")
     ap.add_argument("--rounds", type=int, default=5, help="--compare: alternating rounds")
     ap.add_argument("--cpu-time", action="store_true", help="measure process CPU time")
+    ap.add_argument("--side-by-side", action="store_true", help="constant vs random action per id")
+    ap.add_argument("--steps", type=int, default=300, help="--side-by-side: steps per round")
+    ap.add_argument("--osqp-tail", action="store_true", help="OSQP solve-time tail per id")
     args = ap.parse_args()
     if args.cpu_time:
         global _clock
@@ -191,6 +284,12 @@ def main() -> None:
         compare(*args.compare, args.ids, args.episodes, args.noise, args.rounds, args.cpu_time)
         return
     ids = args.ids or registered_ids()
+    if args.osqp_tail:
+        osqp_tail(ids, args.steps)
+        return
+    if args.side_by_side:
+        side_by_side(ids, args.steps, args.rounds)
+        return
     rows = [bench(env_id, args.episodes, args.noise) for env_id in ids]
     if args.json:
         print(json.dumps(rows))

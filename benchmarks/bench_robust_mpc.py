@@ -22,7 +22,7 @@ PID env of the same scenario is the ceiling set by the plant and the env's own
 bookkeeping.
 
 BLAS is limited to one thread (the QP builds are small dense products; see
-:func:`train_envs.controllers.tube.tube_mpc._single_thread_blas`).
+:func:`train_envs.mpc.blas.single_thread_blas`).
 """
 
 from __future__ import annotations

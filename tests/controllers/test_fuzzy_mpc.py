@@ -160,6 +160,60 @@ def test_resolve_triggers(scenario):
     assert c._force_solve
 
 
+def _run(sc, c, steps, change=None):
+    """``steps`` control steps of ``c`` on ``sc``; ``change(k)`` gives parameters set
+    before step ``k`` (or None); returns the per-step ``triggered`` flags."""
+    from train_envs.simulation import ClosedLoop
+
+    loop = ClosedLoop(sc, c)
+    loop.reset(seed=0)
+    flags = []
+    for k in range(steps):
+        params = None if change is None else change(k)
+        if params:
+            c.set_params(**params)
+        u, info = c.compute(loop.observe())
+        loop.step(u)
+        flags.append(info["triggered"])
+    return flags
+
+
+def test_new_weights_take_effect_at_the_latest_after_the_delay(scenario):
+    """A weight change is taken by the next re-solve, at the latest
+    ``weights_delay_steps`` steps later; ``0`` solves at the next step."""
+    sc = scenario.with_overrides(t_max_s=60.0)
+    for delay in (0, 4):
+        c = FuzzyMPCController(sc, weights_delay_steps=delay)
+        flags = _run(sc, c, 30, lambda k: {"q_v": 2.0} if k == 20 else None)
+        assert sum(flags[20 : 20 + delay + 1]) >= 1
+        if delay == 0:
+            assert flags[20] == 1.0
+        assert c._weights_since is None
+
+
+def test_weights_changing_every_step_do_not_force_a_solve_every_step(scenario):
+    """Weights changed at every step (an RL agent): with ``weights_delay_steps=0`` every
+    step solves the LMI; with a delay only the re-solve events do (the state leaving or
+    shrinking inside the cached ellipsoid), and at least one per ``delay + 1`` steps."""
+    sc = scenario.with_overrides(t_max_s=60.0)
+    steps, delay = 60, 20
+    specs = FuzzyMPCController.PARAMS[:3]
+    counts = {}
+    for d in (0, delay):
+        rng = np.random.default_rng(0)
+
+        def change(k, rng=rng):
+            units = rng.uniform(-1, 1, 3)
+            return {p.name: p.from_unit(a) for p, a in zip(specs, units, strict=True)}
+
+        flags = _run(sc, FuzzyMPCController(sc, weights_delay_steps=d), steps, change)
+        counts[d] = sum(flags)
+        gaps = np.diff(np.flatnonzero(flags))
+        assert gaps.max() <= d + 1  # a change made right after a solve waits d steps
+    assert counts[0] == steps
+    assert counts[delay] <= steps / 2
+
+
 # ---------------------------------------------------------------- compensator
 def _actuator_response(comp: BacksteppingCompensator | None, steps: int = 12) -> float:
     """Integral squared error of F against a unit step of u_d (fine simulation)."""
@@ -290,6 +344,7 @@ def test_no_compensator_without_second_order_actuator(scenario):
         ({"r_e": 0.0}, "r_e"),
         ({"c1": 5.0}, "c1"),
         ({"lmi_period": -1}, "lmi_period"),
+        ({"weights_delay_steps": -1}, "weights_delay_steps"),
         ({"feedforward": "bogus"}, "feedforward"),
         ({"resolve_shrink": 2.0}, "resolve_shrink"),
         ({"floor": 0.0}, "floor"),

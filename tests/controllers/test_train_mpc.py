@@ -49,22 +49,51 @@ def test_terminal_cost_satisfies_lyapunov_equation():
     np.testing.assert_allclose(Px, P[:n, :n])
 
 
-def test_terminal_cost_falls_back_to_doubling_when_schur_method_fails(monkeypatch):
-    """An RL agent's extreme weights made scipy's QZ reordering give up inside an env
-    step; the doubling iteration then gives the same stabilising solution."""
+def test_terminal_cost_falls_back_to_schur_method_when_doubling_fails(monkeypatch):
+    """The doubling iteration solves the DARE; where it does not converge scipy's Schur
+    method gives the same stabilising solution."""
     import train_envs.mpc.design as design
 
     sc, c, Qx, R = _sempc_terminal_data()
     P_ref, K_ref, _ = augmented_terminal_cost(c._Ad, c._Bd, Qx, R)
 
     def failing(*args, **kwargs):
-        raise ValueError("Reordering of (A, B) failed")
+        raise np.linalg.LinAlgError("DARE doubling iteration did not converge")
 
-    monkeypatch.setattr(design, "solve_discrete_are", failing)
+    monkeypatch.setattr(design, "dare_doubling", failing)
     P, K, _ = augmented_terminal_cost(c._Ad, c._Bd, Qx, R)
     np.testing.assert_allclose(P, P_ref, rtol=1e-8, atol=1e-10 * np.abs(P_ref).max())
     np.testing.assert_allclose(K, K_ref, rtol=1e-6, atol=1e-9)
-    # and the controller keeps running with parameters at the edges of their bounds
+
+
+def test_doubling_terminal_cost_equals_schur_method_over_random_weights():
+    """Over random weights of the whole tunable box (what an RL agent sends), the
+    doubling solution equals scipy's to 1e-6 relative (OSQP's tolerance), and the
+    controller keeps running with parameters at the edges of their bounds (where scipy's
+    QZ reordering gives up)."""
+    from scipy.linalg import solve_discrete_are
+
+    sc, c, _, _ = _sempc_terminal_data()
+    n, m = c._Bd.shape
+    Aa = np.block([[c._Ad, c._Bd], [np.zeros((m, n)), np.eye(m)]])
+    Ba = np.vstack([c._Bd, np.eye(m)])
+    rng = np.random.default_rng(3)
+    specs = c.tunable_params()
+    compared = 0
+    for _ in range(40):
+        units = rng.uniform(-1, 1, len(specs))
+        c.set_params(**{p.name: p.from_unit(a) for p, a in zip(specs, units, strict=True)})
+        Q, R, _ = c._weights()
+        Qa = np.zeros((n + m, n + m))
+        Qa[:n, :n] = c._C.T @ Q @ c._C
+        P, _, _ = augmented_terminal_cost(c._Ad, c._Bd, c._C.T @ Q @ c._C, R)
+        try:
+            P_ref = solve_discrete_are(Aa, Ba, Qa, R)
+        except ValueError:
+            continue
+        compared += 1
+        assert np.abs(P - P_ref).max() <= 1e-6 * np.abs(P_ref).max()
+    assert compared >= 30
     c.set_params(q_dx=1e8, q_dv=1e-2, r_du=1e-6, q_s=1e2, q_v=1e-2)
     res = simulate(sc, c, seed=0)
     assert np.isfinite(res.metrics["E_p_m"])

@@ -64,6 +64,7 @@ from train_envs.controllers.models import (
     resistance_offset_accel,
 )
 from train_envs.mpc import LinearMPC
+from train_envs.mpc.blas import single_thread_blas
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.physics import davis_slope
 from train_envs.validation import check_range
@@ -326,8 +327,9 @@ class AdaptiveCruiseMPC(Controller):
                 not math.isclose(a, b, rel_tol=1e-12, abs_tol=0.0)
                 for a, b in zip(key, old, strict=True)
             ):
-                Q, R, S = self._weights()
-                self._mpc.set_weights(Q=Q, R=R, S=S)
+                with single_thread_blas():
+                    Q, R, S = self._weights()
+                    self._mpc.set_weights(Q=Q, R=R, S=S)
                 self._weights_key = key
 
     def _wkey(self) -> tuple[float, float, float]:

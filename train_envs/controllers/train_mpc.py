@@ -15,9 +15,10 @@ value update in OSQP) only when the reference speed has moved more than
 ``relinearise_mps`` (5 m/s) from v_lin (why that suffices: ``docs/design/mpc_engine.md``).
 
 Terminal cost (SEMPC, 000 §III-B; 001 eq. 11, 20): P is the solution of the discrete
-Riccati equation of the augmented model with the stage weights (scipy
-``solve_discrete_are``), i.e. the cost-to-go of the LQR law ``Δu = K ξ``, which
-satisfies the Lyapunov equation ``A_clᵀ P A_cl − P + Q + Kᵀ R K = 0`` (000 eq. 17–19).
+Riccati equation of the augmented model with the stage weights (the doubling iteration
+``dare_doubling``, scipy's Schur method as fallback), i.e. the cost-to-go of the LQR
+law ``Δu = K ξ``, which satisfies the Lyapunov equation
+``A_clᵀ P A_cl − P + Q + Kᵀ R K = 0`` (000 eq. 17–19).
 The core weights the model state x at the end of the horizon, so the x-block of P
 is used (the u(k−1) block is the cost of a command not yet at its steady value and is
 left out). ``terminal=False`` gives the plain MPC of paper 000's comparison.
@@ -50,6 +51,7 @@ from train_envs.controllers.models import (
     resistance_offset_accel,
 )
 from train_envs.mpc import LinearMPC, augmented_terminal_cost, dare_doubling, zoh
+from train_envs.mpc.blas import single_thread_blas
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.physics import davis_horner_N, davis_slope
 from train_envs.trains import G
@@ -104,8 +106,9 @@ class _TrainMPCBase(Controller):
         super().__init__(**params)
 
     def _apply_weights(self) -> None:
-        Q, R, P = self._weights()
-        self._mpc.set_weights(Q=Q, R=R, P=P)
+        with single_thread_blas():
+            Q, R, P = self._weights()
+            self._mpc.set_weights(Q=Q, R=R, P=P)
         self._weights_key = tuple(sorted(self._params.items()))
 
     def _terminal_weight(self, Q: np.ndarray, R: np.ndarray) -> np.ndarray | None:

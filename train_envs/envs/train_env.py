@@ -26,6 +26,7 @@ from train_envs.envs.action import TuningAction
 from train_envs.envs.config import EnvConfig
 from train_envs.envs.observation import OBS_CLIP, TuningObservation
 from train_envs.envs.reward import OBJECTIVES, TuningReward
+from train_envs.mpc.blas import single_thread_blas
 from train_envs.scenarios import DisturbanceSpec, Scenario, get_scenario, real_line_scenario
 from train_envs.simulation import ClosedLoop
 
@@ -249,9 +250,10 @@ class TrainTuningEnv(gym.Env):
         return self._observe(), {"scenario": self.scenario.name, "params": params}
 
     def step(self, action):
-        clipped, params = self._act(action)
+        with single_thread_blas():  # small matrices: BLAS threads only cost (mpc.blas)
+            clipped, params = self._act(action)
+            k0 = self._simulate()
         self._clipped_total += clipped
-        k0 = self._simulate()
         terminated, truncated = self._episode_end()
         final = terminated or truncated
         costs = self._costs(k0, final)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from train_envs.mpc.blas import single_thread_blas
 from train_envs.mpc.description import _check_penalty_arg, _weight
 
 
@@ -178,10 +179,19 @@ class _AssemblyMixin:
         The condensed quantities (prediction matrices, Hessian ``H``, the maps of the
         constraint rows onto ``z``) are built for both forms: they give
         :meth:`gain_unconstrained`, the exact refinement and the fallback prediction.
+        The weight-independent part (:meth:`_build_model`) is kept per model; a weight
+        change runs :meth:`_build_weights` only.
         """
-        self._unc_cache = None  # the unconstrained shortcut's data follow the matrices
-        self._pin_key: bytes | None | bool = False  # pinned inputs: not looked at yet
-        n, m, p, Np, Nc, nz = self.n, self.m, self.p, self.Np, self.Nc, self._nz
+        self._build_model()
+        self._build_weights()
+        if np.any(self._P_dense[~self._Pmask] != 0):
+            raise RuntimeError("internal error: QP entries outside the fixed sparsity pattern")
+
+    def _build_model(self) -> None:
+        """The weight-independent matrices of :meth:`_build`: the weighted residuals'
+        maps ``Ez``, ``Eth`` (sparse: ``Ew``, ``Eth_s``), the constraint matrix ``A`` and
+        the offset, plan and trajectory maps (made once per model)."""
+        n, m, p, Np, nz = self.n, self.m, self.p, self.Np, self._nz
         A, B, C = self._A, self._B, self._C
         nt = self._ntheta
         sel = self._sel
@@ -192,24 +202,12 @@ class _AssemblyMixin:
         Dth, Xth, Yth, Uth, dUth = S_.Dth, S_.Xth, S_.Yth, S_.Uth, S_.dUth
         Gz, Gth, Gx = S_.Gz, S_.Gth, S_.Gx
 
-        # weighted residuals e = Ez z + Eth theta (condensed), weights W ------------------
+        # weighted residuals e = Ez z + Eth theta (condensed), in the order of W ---------
         Ez_parts = [Sy, self._Dz]
         Eth_parts = [Yth - sel("r", nt), dUth]
-        # per-stage weight scales (``stage_scales``; identity by default)
-        sQ, sR, sS = self._stage_scales
-        DQ = np.eye(Np) if sQ is None else np.diag(sQ)
-        DR = np.eye(Nc) if sR is None else np.diag(sR)
-        DS = np.eye(Np) if sS is None else np.diag(sS)
-        W_parts = [_scaled_blocks(DQ, self._Q), _scaled_blocks(DR, self._R)]
-        L_parts = [
-            _scaled_blocks(np.sqrt(DQ), _psd_sqrt(self._Q)),
-            _scaled_blocks(np.sqrt(DR), _psd_sqrt(self._R)),
-        ]
         if self._S is not None:
             Ez_parts.append(Tz)
             Eth_parts.append(Uth - sel("ur", nt))
-            W_parts.append(_scaled_blocks(DS, self._S))
-            L_parts.append(_scaled_blocks(np.sqrt(DS), _psd_sqrt(self._S)))
         if self._P is not None:
             if self.terminal == "state":
                 Ez_parts.append(Sx[-n:])
@@ -217,22 +215,10 @@ class _AssemblyMixin:
             else:
                 Ez_parts.append(Sy[-p:])
                 Eth_parts.append(Yth[-p:] - sel("r", nt)[-p:])
-            W_parts.append(self._P)
-            L_parts.append(_psd_sqrt(self._P))
-        Ez = np.vstack(Ez_parts)
-        Eth = np.vstack(Eth_parts)
-        W = _block_diag(W_parts)
-        Lw = _block_diag(L_parts)
-        EzW = Ez.T @ W
-        H = EzW @ Ez
-        H = 0.5 * (H + H.T)
-        Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
-        Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+        self._Ez = np.vstack(Ez_parts)
+        self._Eth = np.vstack(Eth_parts)
 
         con = self._con
-        rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
-        self._rho_s = rho_s
-        self._gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
         ns, nh, nlu, r0 = self._ns, self._row_soft, self._n_bound_row, self._row_input
         n_u = nz
         n_du = nz if self._has_du else 0
@@ -246,16 +232,12 @@ class _AssemblyMixin:
             [Uth[:nz]] + ([dUth] if n_du else []) + [Gth[hard_c], Gth[soft_c], Gth[soft2_c]]
         )
 
-        # OSQP matrices ------------------------------------------------------------------
+        # OSQP constraint matrix -----------------------------------------------------------
         oz, oe, nv = self._col_input, self._col_slack, self._n_var
         sl = np.arange(ns)
         Ad = np.zeros((self._n_row, nv))
-        Pd = np.zeros((nv, nv))
         if not sparse:
             Ad[:nlu, :nz] = self._Gsem
-            Pd[:nz, :nz] = 2.0 * np.triu(H)
-            Hw_q = Fq  # q of the non-slack variables
-            Lth = Lth_c
             Cth = self._Csem
         else:
             nxv = self._nxv
@@ -296,41 +278,99 @@ class _AssemblyMixin:
                 else:
                     Ew_parts.append(C @ last)
                     Eth_s.append(-sel("r", nt)[-p:])
-            Ew = np.vstack(Ew_parts)
-            EwW = Ew.T @ W
-            Hw = EwW @ Ew
-            Pd[:oe, :oe] = 2.0 * np.triu(0.5 * (Hw + Hw.T))
-            Hw_q = 2.0 * EwW @ np.vstack(Eth_s)
-            Lth = Lw @ np.vstack(Eth_s)
+            self._Ew = np.vstack(Ew_parts)
+            self._Eth_s = np.vstack(Eth_s)
             # theta-dependent offsets: dynamics, input and rate rows (the state and
             # output rows act on the variables directly and have constant bounds)
             Cth = np.vstack([Cth_dyn, Uth[:nz]] + ([dUth] if n_du else []))
+        self._Cth = Cth
         Ad[nh + sl, oe + sl] = -1.0
         if soft2_c.size:
             Ad[nh + ns + np.arange(soft2_c.size), oe + self._soft2_slack] = 1.0
         Ad[nlu + sl, oe + sl] = 1.0
-        Pd[oe + sl, oe + sl] = 2.0 * self._gamma_s
-        if np.any(Ad[~self._Amask] != 0) or np.any(Pd[~self._Pmask] != 0):
+        if np.any(Ad[~self._Amask] != 0):
             raise RuntimeError("internal error: QP entries outside the fixed sparsity pattern")
-        self._A_dense, self._P_dense = Ad, Pd
+        self._A_dense = Ad
+
+        self._y_is_x = p == n and np.array_equal(C, np.eye(n))
+        # (condensed: the planned inputs' offsets are part of v; the predicted states and
+        # outputs, rarely read, have their own map evaluated on demand -- MPCSolution.X/Y)
+        if sparse:  # the states are variables
+            self._traj_th: list[np.ndarray] = []
+            self._M_xy = self._Wz_xy = None
+        else:
+            self._traj_th = [Uth[:nz]]
+            self._M_xy = np.ascontiguousarray(np.vstack([Xth] + ([] if self._y_is_x else [Yth])))
+            self._Wz_xy = np.ascontiguousarray(np.vstack([Sx] + ([] if self._y_is_x else [Sy])))
+        self._Wz_u = None if sparse else np.ascontiguousarray(self._Tz_c)
+        self._Cpinv = S_.Cpinv
+        self._Xth, self._Sx = Xth, Sx
+
+    def _build_weights(self) -> None:
+        """The weight-dependent part of :meth:`_build`: ``P``, the linear cost map, the
+        cost constant and the condensed Hessian (on the matrices of :meth:`_build_model`)."""
+        self._unc_cache = None  # the unconstrained shortcut's data follow the matrices
+        self._pin_key: bytes | None | bool = False  # pinned inputs: not looked at yet
+        Np, Nc, nz = self.Np, self.Nc, self._nz
+        nt = self._ntheta
+        sparse = self._sparse
+        Ez, Eth = self._Ez, self._Eth
+
+        # weights W of the residuals (per-stage scales: ``stage_scales``) -----------------
+        sQ, sR, sS = self._stage_scales
+        DQ = np.eye(Np) if sQ is None else np.diag(sQ)
+        DR = np.eye(Nc) if sR is None else np.diag(sR)
+        DS = np.eye(Np) if sS is None else np.diag(sS)
+        W_parts = [_scaled_blocks(DQ, self._Q), _scaled_blocks(DR, self._R)]
+        L_parts = [
+            _scaled_blocks(np.sqrt(DQ), _psd_sqrt(self._Q)),
+            _scaled_blocks(np.sqrt(DR), _psd_sqrt(self._R)),
+        ]
+        if self._S is not None:
+            W_parts.append(_scaled_blocks(DS, self._S))
+            L_parts.append(_scaled_blocks(np.sqrt(DS), _psd_sqrt(self._S)))
+        if self._P is not None:
+            W_parts.append(self._P)
+            L_parts.append(_psd_sqrt(self._P))
+        W = _block_diag(W_parts)
+        Lw = _block_diag(L_parts)
+        EzW = Ez.T @ W
+        H = EzW @ Ez
+        H = 0.5 * (H + H.T)
+        Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
+        Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+
+        con = self._con
+        rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
+        self._rho_s = rho_s
+        self._gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
+        ns = self._ns
+
+        # OSQP cost matrix ---------------------------------------------------------------
+        oe, nv = self._col_slack, self._n_var
+        sl = np.arange(ns)
+        Pd = np.zeros((nv, nv))
+        if not sparse:
+            Pd[:nz, :nz] = 2.0 * np.triu(H)
+            Hw_q = Fq  # q of the non-slack variables
+            Lth = Lth_c
+        else:
+            Ew = self._Ew
+            EwW = Ew.T @ W
+            Hw = EwW @ Ew
+            Pd[:oe, :oe] = 2.0 * np.triu(0.5 * (Hw + Hw.T))
+            Hw_q = 2.0 * EwW @ self._Eth_s
+            Lth = Lw @ self._Eth_s
+        Pd[oe + sl, oe + sl] = 2.0 * self._gamma_s
+        self._P_dense = Pd
 
         # the per-step affine map v = M theta ---------------------------------------------
         # v = [q (nv) | offsets of the rows self._offset_rows | trajectory offsets | cost factor]
         qth = np.zeros((nv, nt))
         qth[:oe] = Hw_q
         qth[oe:, 0] = rho_s  # column 0 of theta is the constant 1
-        self._y_is_x = p == n and np.array_equal(C, np.eye(n))
-        # (condensed: the planned inputs' offsets are part of v; the predicted states and
-        # outputs, rarely read, have their own map evaluated on demand -- MPCSolution.X/Y)
-        if sparse:  # the states are variables
-            traj_th: list[np.ndarray] = []
-            self._M_xy = self._Wz_xy = None
-        else:
-            traj_th = [Uth[:nz]]
-            self._M_xy = np.ascontiguousarray(np.vstack([Xth] + ([] if self._y_is_x else [Yth])))
-            self._Wz_xy = np.ascontiguousarray(np.vstack([Sx] + ([] if self._y_is_x else [Sy])))
         Lth = Lth[np.any(Lth != 0, axis=1)]
-        M = np.vstack([qth, Cth] + traj_th + [Lth])
+        M = np.vstack([qth, self._Cth] + self._traj_th + [Lth])
         self._M_full = np.ascontiguousarray(M)
         self._M_no_D = np.ascontiguousarray(M[:, : self._n_theta_no_D])
         self._v = np.empty(M.shape[0])
@@ -341,13 +381,10 @@ class _AssemblyMixin:
         n_tu = 0 if sparse else self._n_plan
         self._v_plan = slice(t0, t0 + n_tu)
         self._v_cost = slice(t0 + n_tu, M.shape[0])
-        self._Wz_u = None if sparse else np.ascontiguousarray(self._Tz_c)
-        self._Cpinv = S_.Cpinv
         # condensed data for gain_unconstrained(), the refinement and the fallback
         self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
         # weighted residuals e = LwEz z + Lth_c theta (unconstrained_affine's cost)
         self._LwEz = None if sparse else Lw @ Ez
-        self._Xth, self._Sx = Xth, Sx
 
     def _q_init(self) -> np.ndarray:
         q = np.zeros(self._n_var)
@@ -414,13 +451,15 @@ class _AssemblyMixin:
                 if self._groups
                 else np.zeros(0)
             )
-        self._build()
-        self._push_matrices()
+        with single_thread_blas():
+            self._build_weights()
+            self._push_matrices()
 
     def set_model(self, A: ArrayLike, B: ArrayLike, C: ArrayLike | None = None) -> None:
         """Replace the model (same dimensions; ``C=None`` keeps the current ``C``)."""
         A_, B_, C_ = self._check_model(A, B, self._C if C is None else C, (self.n, self.m, self.p))
         self._A, self._B, self._C = A_, B_, C_
         self._struct = None
-        self._build()
-        self._push_matrices()
+        with single_thread_blas():
+            self._build()
+            self._push_matrices()

@@ -58,7 +58,14 @@ def _weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
     if np.max(np.abs(w - w.T), initial=0.0) > 1e-9 * scale:
         raise ValueError(f"{name} must be symmetric")
     w = 0.5 * (w + w.T)
-    if dim and float(np.min(np.linalg.eigvalsh(w))) < -1e-10 * scale:
+    d = np.diag(w)
+    if not dim:
+        return w
+    # a diagonal weight (the usual case, at every weight change) is PSD by its diagonal
+    lam_min = float(d.min()) if np.count_nonzero(w) == np.count_nonzero(d) else None
+    if lam_min is None:
+        lam_min = float(np.min(np.linalg.eigvalsh(w)))
+    if lam_min < -1e-10 * scale:
         raise ValueError(f"{name} must be positive semidefinite")
     return w
 

@@ -6,7 +6,8 @@ r"""Design helpers shared by the controllers: terminal costs and discretisation.
   :math:`A_{cl}^\top P A_{cl} - P + Q_x = 0`;
 * :func:`augmented_terminal_cost` -- the Riccati terminal cost of the
   :math:`\Delta u`-augmented model :math:`\xi = [x; u_{k-1}]` (papers 000 sec. III-B,
-  001 eq. 11, 20), with :func:`dare_doubling` where scipy's Schur method fails;
+  001 eq. 11, 20), solved by :func:`dare_doubling` (scipy's Schur method where the
+  doubling does not converge);
 * :func:`zoh` -- exact zero-order-hold discretisation (one matrix exponential).
 """
 
@@ -91,11 +92,12 @@ def augmented_terminal_cost(
     Qa = np.zeros((n + m, n + m))
     Qa[:n, :n] = Qx
     try:
-        P = solve_discrete_are(Aa, Ba, Qa, R)
-    except (ValueError, np.linalg.LinAlgError):
-        # scipy's QZ reordering gives up on badly scaled weights (e.g. an RL agent's
-        # q_dx = 1e8 with r_du = 1e-6): the doubling iteration has no reordering step
+        # the doubling iteration: 2-5x cheaper than scipy's QZ method on these small
+        # models and free of its reordering failures on badly scaled weights (e.g. an
+        # RL agent's q_dx = 1e8 with r_du = 1e-6); measurements: docs/design/mpc_engine.md
         P = dare_doubling(Aa, Ba, Qa, R)
+    except np.linalg.LinAlgError:
+        P = solve_discrete_are(Aa, Ba, Qa, R)
     P = 0.5 * (P + P.T)
     K = np.linalg.solve(R + Ba.T @ P @ Ba, Ba.T @ P @ Aa)
     return P, K, P[:n, :n].copy()
@@ -113,26 +115,28 @@ def dare_doubling(
 
         A ← A W⁻¹ A,   G ← G + A W⁻¹ G Aᵀ,   H ← H + Aᵀ H W⁻¹ A
 
-    and ``H → P`` quadratically.  Used where scipy's Schur method fails; raises
-    ``np.linalg.LinAlgError`` if it does not converge in 80 doublings.
+    and ``H → P`` quadratically (``H_k`` is the Riccati iterate of ``2^k`` steps).
+    Raises ``np.linalg.LinAlgError`` if it does not converge in 80 doublings.
     """
     n = A.shape[0]
     Ak = np.array(A, dtype=float)
     G = B @ np.linalg.solve(R, B.T)
     H = np.array(Q, dtype=float)
     eye = np.eye(n)
+    AG = np.empty((n, 2 * n))  # [A | G]: both solves with W in one call
     for _ in range(80):
-        W = eye + G @ H
-        WA = np.linalg.solve(W, Ak)
-        WG = np.linalg.solve(W, G)
+        AG[:, :n] = Ak
+        AG[:, n:] = G
+        X = np.linalg.solve(eye + G @ H, AG)
+        WA = X[:, :n]
         H_new = H + Ak.T @ H @ WA
-        G = G + Ak @ WG @ Ak.T
+        G = G + Ak @ X[:, n:] @ Ak.T
         Ak = Ak @ WA
         H_new = 0.5 * (H_new + H_new.T)
-        if not np.all(np.isfinite(H_new)):
-            break
-        done = np.linalg.norm(H_new - H, 1) <= tol * max(1.0, np.linalg.norm(H_new, 1))
+        step = float(np.abs(H_new - H).sum(axis=0).max())  # 1-norm of the change
         H = H_new
-        if done:
+        if not step == step or not np.all(np.isfinite(H)):
+            break
+        if step <= tol * max(1.0, float(np.abs(H).sum(axis=0).max())):
             return H
     raise np.linalg.LinAlgError("DARE doubling iteration did not converge")

@@ -88,11 +88,14 @@ class _Backend:
         self.prob.update(q=q, l=l, u=u)
         return 0
 
-    def update_mat(self, Px: np.ndarray, Ax: np.ndarray) -> None:
+    def update_mat(self, Px: np.ndarray, Ax: np.ndarray | None) -> None:
+        """New values of ``P`` and ``A`` (``Ax=None``: ``A`` unchanged)."""
         if self.raw is not None:
             rc = self.raw.update_data_mat(Px, None, Ax, None)
             if rc:
                 raise RuntimeError(f"OSQP rejected the matrix update (error {rc})")
+        elif Ax is None:
+            self.prob.update(Px=Px)
         else:
             self.prob.update(Px=Px, Ax=Ax)
 

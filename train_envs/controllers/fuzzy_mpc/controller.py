@@ -14,13 +14,21 @@ reference acceleration for ramp references; ``"resistance"`` is 003 eq. 5).
 ellipsoid (a reference step); (b) it has shrunk to ``xᵀQ⁻¹x < resolve_shrink``
 (Kothare's receding horizon: a smaller ellipsoid allows stronger gains; not once the
 state is inside the ρ-ball); (c) v_r moved by more than ``resolve_dv_mps`` since the
-last solve (the rule matrices depend on v_r); (d) weights or bounds changed; (e) every
+last solve (the rule matrices depend on v_r); (d) new weights, see below; (e) every
 ``lmi_period`` steps if ``lmi_period > 0`` (``lmi_period=1`` is Kothare's
 solve-every-step scheme). Between solves the cached PDC gains are used with the
 current memberships; by invariance of the cached ellipsoid they still satisfy the
 constraints (nominal model). If every solver setting fails the cached gains are kept
 (an LQR gain of the middle rule before the first success) and the solve is retried
 10 steps later.
+
+**When new weights take effect (ours).** At the next re-solve (a)-(c), (e), and at the
+latest ``weights_delay_steps`` (100) control steps after the first change not yet taken
+(``0``: at once, one LMI solve per change). Until then the cached PDC gains of the last
+feasible solve stay in use: the invariance of their ellipsoid and the constraints they
+satisfy do not depend on the weights (which enter only the cost bound γ), so the
+guarantees hold; only optimality refers to the earlier weights. An RL agent changing
+the weights at every env step pays a few LMI solves per episode, not one per step.
 
 **Defaults (ours; 003's weight units were lost).** q_v = 0.5 (003's value) per (m/s)²,
 r_e = 0.02 per kN², q_dx = 1e-3 per cm², c_1 = c_2 = 3 1/s, ε = ±15 m/s (covers 003's
@@ -70,6 +78,8 @@ class FuzzyMPCController(Controller):
             step as in Kothare et al.).
         resolve_shrink: re-solve once ``xᵀQ⁻¹x`` falls below this (0 = never).
         resolve_dv_mps: re-solve once v_r moved by this much since the last solve.
+        weights_delay_steps: new weights are taken by a re-solve at the latest this
+            many control steps after they were set (0 = at once; see the module docstring).
         floor: ρ, radius of the ball the ellipsoid must contain (scaled units).
         feedforward: ``"full"`` (resistance + gradient + reference acceleration, for ramp
             references) or ``"resistance"`` (003 eq. 5: resistance + gradient only).
@@ -103,6 +113,7 @@ class FuzzyMPCController(Controller):
         lmi_period: int = 0,
         resolve_shrink: float = 0.25,
         resolve_dv_mps: float = 1.0,
+        weights_delay_steps: int = 100,
         floor: float = 0.05,
         feedforward: str = "full",
         u_bound_N: float | None = None,
@@ -120,6 +131,12 @@ class FuzzyMPCController(Controller):
         self.n_modes = None if n_modes is None else int(n_modes)
         self.memberships = TriangularMemberships(tuple(centres_mps))
         self.lmi_period = int(lmi_period)
+        if int(weights_delay_steps) != weights_delay_steps or weights_delay_steps < 0:
+            raise ValueError(
+                f"weights_delay_steps must be an integer >= 0, got {weights_delay_steps}"
+            )
+        self.weights_delay_steps = int(weights_delay_steps)
+        self._weights_since: int | None = None  # step of the first change not yet solved
         self.resolve_shrink = check_range("resolve_shrink", resolve_shrink, 0.0, 1.0)
         self.resolve_dv_mps = check_range(
             "resolve_dv_mps", resolve_dv_mps, 0.0, math.inf, low_inclusive=False
@@ -153,6 +170,10 @@ class FuzzyMPCController(Controller):
         key = tuple(self._params[k] for k in self._WEIGHTS)
         if key != self._weights_key:
             self._set_weights()
+            if self._sol is None or self.weights_delay_steps == 0:
+                self._force_solve = True
+            elif self._weights_since is None:
+                self._weights_since = self._k
         if self._comp is not None and (self._comp.c1, self._comp.c2) != (
             self._params["c1"],
             self._params["c2"],
@@ -163,7 +184,6 @@ class FuzzyMPCController(Controller):
         p = self._params
         self._W, self._R = self._model.weights(p["q_v"], p["q_dx"], p["r_e"])
         self._weights_key = tuple(p[k] for k in self._WEIGHTS)
-        self._force_solve = True
 
     # ------------------------------------------------------------------- reset
     def reset(self, ctx: ControlContext) -> None:
@@ -197,6 +217,8 @@ class FuzzyMPCController(Controller):
         self._grad = gradient_table(ctx.track) if ctx.track is not None else None
         self._lmi = KothareLMI.shared(self._model.nx, self._model.nu, n, self.memberships.n_rules)
         self._set_weights()
+        self._force_solve = True
+        self._weights_since = None
         self._sol = None
         self._k = 0
         self._k_solve = 0
@@ -284,6 +306,9 @@ class FuzzyMPCController(Controller):
             return self._k >= self._retry_at
         if self.lmi_period and self._k - self._k_solve >= self.lmi_period:
             return True
+        since = self._weights_since
+        if since is not None and self._k - since >= self.weights_delay_steps:
+            return True
         if abs(v_r - self._v_solve) > self.resolve_dv_mps:
             return True
         level = float(x @ sol.Q_inv @ x)
@@ -314,6 +339,7 @@ class FuzzyMPCController(Controller):
             u_bar = np.maximum(room, 1e3) / 1000.0  # kN, at least 1 kN
             sol = self.solve_lmi(x, v_r, u_bar)
             self._force_solve = False
+            self._weights_since = None
             self._k_solve = self._k
             self._v_solve = v_r
             info.update(triggered=1.0, solve_time_s=sol.solve_time_s, iterations=sol.iterations)

@@ -244,4 +244,3 @@ def tube_tightening(
     T.setflags(write=False)
     _cache_put(_TIGHTENING, key, T)
     return T
-

@@ -76,4 +76,3 @@ class TubeSettings:
             )
         if self.overrun_allowance_m is not None:
             check_range("overrun_allowance_m", self.overrun_allowance_m, 0.0, 100.0)
-

@@ -60,27 +60,14 @@ from train_envs.controllers.tube.problem import BIG, ClosedForm, Limits, TubePro
 from train_envs.controllers.tube.settings import DEFAULT_W_BOUND_MPS2, TubeSettings
 from train_envs.controllers.tube.stage import StageData, StageLayout
 from train_envs.mpc import LinearMPC, MPCSolution
+from train_envs.mpc.blas import single_thread_blas
 from train_envs.plants.lookup import gradient_table
 from train_envs.trains import G
 
 __all__ = ["TubeMPC"]
 
-_THREADPOOLS: Any = None
-
-
-def _single_thread_blas() -> Any:
-    """Context limiting BLAS to one thread while QPs are (re)built.
-
-    Building a QP is a few hundred small dense products; on a busy 2-core machine
-    OpenBLAS's threads made one build of the N = 15 self-triggered family 6x slower
-    (0.25 s against 0.04 s).  The controller is created once (~0.1 ms per use).
-    """
-    global _THREADPOOLS
-    if _THREADPOOLS is None:
-        from threadpoolctl import ThreadpoolController
-
-        _THREADPOOLS = ThreadpoolController()
-    return _THREADPOOLS.limit(limits=1, user_api="blas")
+#: the name this module gave the limiter (re-exported by ``controllers.tube_mpc``)
+_single_thread_blas = single_thread_blas
 
 
 class TubeMPC(Controller):
@@ -294,11 +281,11 @@ class TubeMPC(Controller):
     def _problem(self, M: int) -> TubeProblem:
         prob = self._problems.get(M)
         if prob is None:
-            with _single_thread_blas():
+            with single_thread_blas():
                 prob = self._problems[M] = self._make_problem(M)
         key, wb = self._current_keys()
         if prob.weights_key is not key or prob.w_bar != wb:
-            with _single_thread_blas():
+            with single_thread_blas():
                 self._refresh(prob)
         return prob
 
@@ -436,7 +423,7 @@ class TubeMPC(Controller):
         """The problem's closed form (made on first use after a weight or W change)."""
         e = prob.explicit
         if e is None:
-            with _single_thread_blas():
+            with single_thread_blas():
                 e = prob.explicit = make_closed_form(prob, self._layout, self._s_max)
         return e
 
@@ -501,4 +488,3 @@ class TubeMPC(Controller):
             }
         sol = self._solve(prob, data)
         return self._command(obs, data["u_prev"] + float(sol.u0[0])), self._info(sol)
-

@@ -1,0 +1,62 @@
+"""One BLAS thread in the small-matrix paths: building and re-weighting QPs, env steps.
+
+The engine's matrices are small (tens to a few hundred rows); OpenBLAS's thread pool
+only adds synchronisation there, and on a busy machine (more runnable threads than
+cores) a parameter change of the train MPCs became 6-40x dearer with its default
+threads (measurements: ``docs/design/mpc_engine.md``).  :func:`single_thread_blas`
+limits every loaded BLAS to one thread for the duration of a ``with`` block through
+threadpoolctl; nested blocks cost nothing (a depth counter), so an env step can hold
+the limit while the controllers' rebuilds inside it ask for it again.
+"""
+
+from __future__ import annotations
+
+import threading
+from types import TracebackType
+from typing import Any
+
+__all__ = ["single_thread_blas"]
+
+_CONTROLLER: Any = None
+
+
+class _SingleThreadBLAS:
+    """Re-entrant context: the outermost ``with`` sets the limit, the others count (the
+    limit is process-wide, so the count is shared by all threads, under a lock)."""
+
+    def __init__(self) -> None:
+        self._depth = 0
+        self._limit: Any = None
+        self._lock = threading.Lock()
+
+    def __enter__(self) -> _SingleThreadBLAS:
+        with self._lock:
+            if self._depth == 0:
+                global _CONTROLLER
+                if _CONTROLLER is None:
+                    from threadpoolctl import ThreadpoolController
+
+                    _CONTROLLER = ThreadpoolController()
+                self._limit = _CONTROLLER.limit(limits=1, user_api="blas")
+            self._depth += 1
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        with self._lock:
+            self._depth -= 1
+            if self._depth == 0:
+                limit, self._limit = self._limit, None
+                limit.restore_original_limits()
+
+
+_SINGLE = _SingleThreadBLAS()
+
+
+def single_thread_blas() -> _SingleThreadBLAS:
+    """Context manager: BLAS limited to one thread inside (re-entrant, process-wide)."""
+    return _SINGLE
