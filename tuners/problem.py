@@ -82,7 +82,8 @@ class ConfigError(ValueError):
 
 def metric_columns(df: Any) -> list[str]:
     """The numeric metric columns of an episode table (what objectives can name)."""
-    return sorted(c for c in df.columns if df[c].dtype.kind in "fiub" and c != "seed")
+    skip = ("seed", "episode")
+    return sorted(c for c in df.columns if df[c].dtype.kind in "fiub" and c not in skip)
 
 
 def objective_column(name: str) -> str:
