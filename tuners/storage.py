@@ -277,6 +277,9 @@ class StudyStore:
             exists = True
         except KeyError:
             exists = False
+        if exists and not has_run:  # nothing to keep (a start that stopped early): afresh
+            self.storage.delete_study(self.study_id)
+            exists = False
         if exists:
             study = optuna.load_study(study_name=study_name, storage=self.storage)
             if not resume and has_run:
@@ -284,7 +287,7 @@ class StudyStore:
                     f"study {study_name!r} already holds a run; pass resume=True (--resume) to "
                     "continue it or choose another study name"
                 )
-            if stored is not None and has_run:
+            if stored is not None:
                 diff = {
                     k: (stored.get(k), self.run_config.get(k))
                     for k in check_keys
@@ -311,7 +314,7 @@ class StudyStore:
                     study.set_user_attr(CONFIG_ATTR, self.run_config)
             else:
                 study.set_user_attr(CONFIG_ATTR, self.run_config)
-            self.resumed = stored is not None and has_run
+            self.resumed = stored is not None
         else:
             study = optuna.create_study(
                 storage=self.storage,
