@@ -294,7 +294,7 @@ class ProcessBackend(Backend):
             except BaseException:
                 self.terminate()
                 raise
-            if len(futures) == 1 and died:  # alone in the pool: its own failure
+            if suspects and died:  # a suspect alone in the pool: its own failure
                 (i,) = died
                 err = "worker process died while running this evaluation alone"
                 if self._failed(i, attempts, err, on_error):

@@ -35,6 +35,7 @@ from __future__ import annotations
 import datetime
 import hashlib
 import json
+import time
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
@@ -144,11 +145,23 @@ def open_storage(
         kwargs["engine_kwargs"] = {"connect_args": {"timeout": 60}}
     import sqlalchemy.exc
 
-    try:
-        return optuna.storages.RDBStorage(url, **kwargs)
-    except (sqlalchemy.exc.SQLAlchemyError, ImportError, ValueError, RuntimeError) as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ValueError(f"storage {url!r} cannot be opened: {msg}") from exc
+    for attempt in range(5):
+        try:
+            return optuna.storages.RDBStorage(url, **kwargs)
+        except (sqlalchemy.exc.OperationalError, sqlalchemy.exc.IntegrityError) as exc:
+            # two processes creating the tables of a new database at once: the loser
+            # sees "table ... already exists" or a duplicate schema version; opening
+            # again finds the tables
+            race = isinstance(exc, sqlalchemy.exc.IntegrityError) or "already exists" in str(exc)
+            if race and attempt < 4:
+                time.sleep(0.2)
+                continue
+            error: Exception = exc
+        except (sqlalchemy.exc.SQLAlchemyError, ImportError, ValueError, RuntimeError) as exc:
+            error = exc
+        msg = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"storage {url!r} cannot be opened: {msg}") from error
+    raise AssertionError("unreachable")
 
 
 def _study_names(st: optuna.storages.BaseStorage) -> list[str]:
