@@ -254,11 +254,11 @@ def _check_inputs(args: argparse.Namespace) -> dict[str, Any]:
         "constraints": _constraints(args.constraint),
         "f_bounds": None if args.f_lower is None else (args.f_lower, args.f_upper),
     }
-    from tuners.storage import open_storage
-
-    open_storage(args.storage)  # a bad URL or an unreadable file: an error now
     if args.out:
         writable_folder(args.out)
+    from tuners.storage import check_storage
+
+    check_storage(args.storage)  # a bad URL or an unreadable file: an error now
     return out
 
 

@@ -97,6 +97,7 @@ __all__ = [
     "StudyExistsError",
     "StudyLockedError",
     "StudyStore",
+    "check_storage",
     "checkpoint_info",
     "delete_study",
     "evaluations_frame",
@@ -164,6 +165,17 @@ def open_storage(
     raise AssertionError("unreachable")
 
 
+def check_storage(storage: str) -> None:
+    """``ValueError`` if ``storage`` cannot be opened; a new SQLite file is not created
+    here (only its folder is checked)."""
+    path = _sqlite_path(storage)
+    if path is not None and not path.exists():
+        if not path.parent.is_dir():
+            raise ValueError(f"storage {storage}: folder {path.parent} does not exist")
+        return
+    open_storage(storage)
+
+
 def _study_names(st: optuna.storages.BaseStorage) -> list[str]:
     return [s.study_name for s in st.get_all_studies()]
 
@@ -180,7 +192,13 @@ def load_study(study_name: str, storage: str | optuna.storages.BaseStorage) -> o
 def stored_run_config(
     study_name: str, storage: str | optuna.storages.BaseStorage | None
 ) -> tuple[bool, dict[str, Any] | None]:
-    """(study exists and holds evaluations or a checkpoint, its ``tuner_config``)."""
+    """(study exists and holds evaluations or a checkpoint, its ``tuner_config``).
+
+    Creates no database: a missing SQLite file holds no study.
+    """
+    path = _sqlite_path(storage) if isinstance(storage, str) else None
+    if path is not None and not path.is_file():
+        return False, None
     st = open_storage(storage)
     try:
         sid = st.get_study_id_from_name(study_name)
