@@ -50,7 +50,8 @@ def test_best_trials_and_dashboard_honour_feasibility(tmp_path):
     assert best == set(r.pareto["trial"])  # Optuna's Pareto set is the tuner's
     dashboard = pytest.importorskip("optuna_dashboard._serializer")
     trial = study.trials[0]
-    ser = dashboard.serialize_frozen_trial(study._study_id, trial, study.system_attrs)
+    attrs = study._storage.get_study_system_attrs(study._study_id)
+    ser = dashboard.serialize_frozen_trial(study._study_id, trial, attrs)
     assert ser["constraints"] == trial.user_attrs["tuner"]["G"]
 
 
