@@ -55,7 +55,7 @@ CONFIG_ATTR = "tuner_config"
 TRIAL_ATTR = "tuner"  # one packed user attr per trial (each attr is a DB row: ~2 ms)
 CHECKPOINT_META = "tuner:checkpoint"
 CHECKPOINT_SCHEMA = 2
-LEGACY_CHUNK_PREFIX = "tuner:ckpt:"  # pickled algorithms of schema 1: never loaded
+LEGACY_CHUNK_PREFIX = "tuner:ckpt:"  # pickled algorithm chunks: refused, never loaded
 CODE_HISTORY_ATTR = "tuner_code_history"  # code fingerprints of a run resumed across versions
 #: packages whose code and data decide what an evaluation returns
 CODE_PACKAGES = ("train_envs", "tuners")
@@ -517,8 +517,8 @@ def read_checkpoint(
 ) -> dict[str, Any] | None:
     """Checkpoint metadata of a study, validated; ``ValueError`` naming what is wrong.
 
-    A checkpoint of another schema — e.g. the pickled algorithm chunks (``tuner:ckpt:*``)
-    that earlier versions stored — is refused and never loaded: a pickle runs code.
+    A checkpoint in any other form — such as pickled algorithm chunks under
+    ``tuner:ckpt:*`` — is refused and never loaded: a pickle runs code.
     """
     attrs = storage.get_study_system_attrs(study_id)
     meta = attrs.get(CHECKPOINT_META)

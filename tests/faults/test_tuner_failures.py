@@ -5,7 +5,6 @@ from __future__ import annotations
 import hashlib
 import os
 import signal
-import sqlite3
 import subprocess
 import sys
 import textwrap
@@ -17,6 +16,7 @@ import numpy as np
 import optuna
 import pytest
 from pymoo.problems import get_problem
+from study_watch import wait_for_trials
 
 # kept light: pool workers import this module to unpickle the tasks below
 from tuners.problem import ConfigError, PymooTask, PymooTaskProblem
@@ -184,17 +184,7 @@ def test_ctrl_c_is_one_line_and_exit_130(tmp_path):
             f"sqlite:///{dbfile}", "--study", "c", "--no-progress"]  # fmt: skip
     proc = subprocess.Popen(argv, env=ENV, cwd=tmp_path, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
-    deadline = time.time() + 180
-    n = 0
-    while time.time() < deadline and proc.poll() is None and n < 3:
-        if dbfile.exists():
-            try:
-                with sqlite3.connect(dbfile, timeout=1) as con:
-                    n = con.execute("select count(*) from trials").fetchone()[0]
-            except sqlite3.Error:
-                n = 0
-        time.sleep(0.2)
-    assert n >= 3, proc.communicate(timeout=30)
+    wait_for_trials(dbfile, 3, proc, timeout=180)
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: the whole process group
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err

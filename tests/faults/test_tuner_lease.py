@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import signal
 import socket
-import sqlite3
 import subprocess
 import sys
 import textwrap
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import optuna
 import pytest
+from study_watch import wait_for_trials
 
 from tuners.lease import LEASES, StudyLease, StudyLockedError, lease_holder
 from tuners.storage import open_storage
@@ -37,20 +37,6 @@ SLOW = textwrap.dedent(
 )
 
 
-def _wait_for_trials(dbfile: Path, n: int, proc: subprocess.Popen, timeout: float = 90) -> None:
-    deadline = time.time() + timeout
-    while time.time() < deadline and proc.poll() is None:
-        if dbfile.exists():
-            try:
-                with sqlite3.connect(dbfile, timeout=1) as con:
-                    if con.execute("select count(*) from trials").fetchone()[0] >= n:
-                        return
-            except sqlite3.Error:
-                pass
-        time.sleep(0.1)
-    raise AssertionError(f"the writer made no {n} trials (rc {proc.poll()})")
-
-
 def test_second_writer_refused_then_stale_lease_taken_over(tmp_path):
     from pymoo.problems import get_problem
 
@@ -63,7 +49,7 @@ def test_second_writer_refused_then_stale_lease_taken_over(tmp_path):
     script.write_text(SLOW)
     proc = subprocess.Popen([sys.executable, str(script), db], env=ENV, cwd=tmp_path)
     try:
-        _wait_for_trials(dbfile, 5, proc)
+        wait_for_trials(dbfile, 5, proc)
         prob = PymooTaskProblem(get_problem("zdt1", n_var=4), name="zdt1")
         with pytest.raises(
             StudyLockedError, match=rf"written by {socket.gethostname()}:{proc.pid}"

@@ -52,7 +52,7 @@ def test_no_pickle_in_the_tuners():
 
 
 def test_crafted_pickle_checkpoint_does_not_run(tmp_path):
-    """A pickle stored where the checkpoint chunks of earlier versions lived is refused
+    """A pickle stored as checkpoint chunks (``tuner:ckpt:a:0``) is refused
     with a clear error and never unpickled."""
     db = f"sqlite:///{tmp_path / 'runs.db'}"
     tune(_zdt(), "mowoa", iters=2, storage=db, study="s", **KW)
