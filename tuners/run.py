@@ -5,9 +5,12 @@ A run = a :class:`tuners.problem.EnvTuningProblem` (or any
 ``mopso``, or pymoo's ``nsga2`` / ``moead`` as baselines), an evaluation backend
 (:mod:`tuners.backends`) and an Optuna study (:mod:`tuners.storage`). Each generation is
 one batch of evaluations; every finished evaluation is written to the study at once and
-the algorithm is checkpointed after every generation, so ``resume=True`` continues a
-killed run without re-running any finished evaluation and ends with exactly the
-uninterrupted run's result (same seed). A run records the fingerprint of the code that
+a checkpoint (plain data) after every generation, so ``resume=True`` continues a killed
+run — the algorithm rebuilt from the stored settings and replayed from the stored
+evaluations (:mod:`tuners.checkpoint`) — without re-running any finished evaluation and
+ends with exactly the uninterrupted run's result. Settings left out on resume take the
+stored values; a changed one is refused by name (:mod:`tuners.settings`); one process
+writes a study at a time (:mod:`tuners.lease`). A run records the fingerprint of the code that
 evaluates (:func:`tuners.storage.code_fingerprint`); resuming it with other code is
 refused (its cached evaluations would answer for the new code) unless
 ``allow_code_change=True``. ``{code}`` in a study name stands for that fingerprint's
