@@ -10,7 +10,7 @@ constructed algorithm with the stored settings, advanced generation by generatio
 every evaluation answered from the cache, reaches exactly the checkpointed state;
 :func:`replay` checks that against the digests and refuses a diverged replay.
 
-Cost: the algorithm's own work per generation (milliseconds), no episode.
+Cost: the algorithm's own work per generation, no episode.
 """
 
 from __future__ import annotations
