@@ -10,11 +10,9 @@ import argparse
 import hashlib
 import os
 import signal
-import sqlite3
 import subprocess
 import sys
 import textwrap
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +20,7 @@ import numpy as np
 import pytest
 from pymoo.core.problem import Problem
 from pymoo.problems import get_problem
+from study_watch import wait_for_trials
 
 # kept light: worker processes of the crash test import this module to unpickle
 # FlakyTask; everything heavier is imported inside the tests
@@ -336,24 +335,11 @@ def test_resume_after_kill_is_identical(tmp_path):
     script.write_text(KILL_SCRIPT.format(env=PID))
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen([sys.executable, str(script), db, "killed"], env=env, cwd=REPO)
-    dbfile = tmp_path / "runs.db"
-    deadline = time.time() + 90
-    n_seen = 0
-    try:
-        while time.time() < deadline and proc.poll() is None:
-            if dbfile.exists():
-                try:
-                    with sqlite3.connect(dbfile, timeout=1) as con:
-                        n_seen = con.execute("select count(*) from trials").fetchone()[0]
-                except sqlite3.Error:
-                    n_seen = 0
-                if n_seen >= 7:  # generation 1 has at most 5 evaluations
-                    break
-            time.sleep(0.02)
+    try:  # generation 1 has at most 5 evaluations: 7 trials = inside generation 2
+        wait_for_trials(tmp_path / "runs.db", 7, proc, poll_s=0.02)
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(30)
-    assert n_seen >= 7, "the child run never got into generation 2"
     done_gen = checkpoint_info("killed", db)["n_gen"]
     before = {t.user_attrs["tuner"]["key"] for t in _trials(db, "killed")}
     gens_before = [t.user_attrs["generation"] for t in _trials(db, "killed")]

@@ -1,4 +1,4 @@
-"""Helper of the tuner fault tests: wait until a writer process has stored trials."""
+"""Test helper: wait until a tuning process has stored trials in its SQLite study."""
 
 from __future__ import annotations
 
@@ -8,7 +8,9 @@ import time
 from pathlib import Path
 
 
-def wait_for_trials(dbfile: Path, n: int, proc: subprocess.Popen, timeout: float = 90) -> int:
+def wait_for_trials(
+    dbfile: Path, n: int, proc: subprocess.Popen, timeout: float = 90, poll_s: float = 0.1
+) -> int:
     """Poll the SQLite study file until it holds ``n`` trials; the count seen.
 
     Raises ``AssertionError`` if the process ends or the time runs out first.
@@ -24,5 +26,5 @@ def wait_for_trials(dbfile: Path, n: int, proc: subprocess.Popen, timeout: float
                 seen = 0
             if seen >= n:
                 return seen
-        time.sleep(0.1)
+        time.sleep(poll_s)
     raise AssertionError(f"the writer stored {seen} < {n} trials (rc {proc.poll()})")
