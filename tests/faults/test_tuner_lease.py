@@ -103,3 +103,17 @@ def test_two_fresh_starts_at_once_one_refused_cleanly(tmp_path):
     (err,) = [e for p, (_, e) in zip(procs, outs, strict=True) if p.returncode == 2]
     assert "Traceback" not in err and err.count("\n") == 1
     assert "being written by" in err or "already holds a run" in err
+
+
+def test_delete_is_refused_while_a_run_holds_the_study(tmp_path):
+    from tuners.storage import delete_study
+
+    db = f"sqlite:///{tmp_path / 'x.db'}"
+    optuna.create_study(study_name="s", storage=db)
+    st = open_storage(db)
+    held = StudyLease(st, "s").acquire()
+    with pytest.raises(StudyLockedError, match="being written by"):
+        delete_study("s", db)
+    held.release()
+    delete_study("s", db)
+    assert optuna.get_all_study_names(storage=db) == []
