@@ -22,7 +22,7 @@ DEMO_ARGS := --env TrainEnvs/Urban004-v0 --algo mowoa --pop 12 --iters 5 --seeds
 	--holdout-seeds 100 101 102 --config $(DEMO_CONFIG) \
 	--constraint max_overspeed_mps=0 --constraint time_error_s=5 --constraint E_p_m=2 \
 	--f-lower 0 0 0 0 0 --f-upper 1000 0.5 1 0.1 2.5 \
-	--storage sqlite:///out/demo/tuning.db --study 'demo-urban004-{code}' --resume --out out/demo
+	--storage sqlite:///out/demo/tuning.db --study 'demo-urban004-{code}' --resume-or-start --out out/demo
 
 demo: setup
 	mkdir -p out/demo

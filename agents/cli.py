@@ -28,11 +28,26 @@ def _json_arg(text: str | None, flag: str) -> dict[str, Any]:
     return json_object(text, flag) or {}
 
 
+#: hyperparameters of SB3's PPO, SAC and TD3 that must be integers / numbers
+INT_HYPERPARAMS = (
+    "n_steps", "batch_size", "n_epochs", "buffer_size", "learning_starts", "gradient_steps",
+    "n_envs", "n_timesteps", "policy_delay",
+)  # fmt: skip
+FLOAT_HYPERPARAMS = ("gamma", "gae_lambda", "vf_coef", "max_grad_norm", "tau")
+
+
 def _overrides(items: list[str] | None) -> dict[str, Any]:
-    """``key=value`` pairs; values are parsed as YAML scalars/flow collections."""
+    """``key=value`` pairs; values are parsed as YAML scalars/flow collections; the
+    integer and number hyperparameters are checked here (``ValueError`` naming them)."""
     import yaml
 
-    return key_values(items, "--hyperparams", yaml.safe_load)
+    out = key_values(items, "--hyperparams", yaml.safe_load)
+    for key, val in out.items():
+        if key in INT_HYPERPARAMS and (isinstance(val, bool) or not isinstance(val, int)):
+            raise ValueError(f"--hyperparams {key}: {val!r} is not an integer")
+        if key in FLOAT_HYPERPARAMS and (isinstance(val, bool) or not isinstance(val, int | float)):
+            raise ValueError(f"--hyperparams {key}: {val!r} is not a number")
+    return out
 
 
 # ------------------------------------------------------------------------ train

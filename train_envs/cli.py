@@ -4,7 +4,8 @@ that the packages built on train_envs register (``tune``; ``train``, ``evaluate`
 Those are found as entry points of the group ``train_envs.cli`` (see
 :mod:`train_envs.cli_args`): each is a function ``add(subparsers)`` that adds its
 subcommands and sets ``func`` (an ``args -> int`` exit code) on the parsed namespace.
-A ``ValueError`` raised by a command is printed as one ``error:`` line, exit code 2.
+Every error of a command is printed as one ``error:`` line on stderr with exit code 2
+(``--debug``: the traceback instead); Ctrl-C ends with exit code 130.
 """
 
 from __future__ import annotations
@@ -157,8 +158,22 @@ def add_registered_commands(sub: argparse._SubParsersAction) -> list[str]:
     return added
 
 
+def package_version() -> str:
+    """The installed ``train-envs`` version (``unknown`` when run from a bare checkout)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("train-envs")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="train-envs", description=DESCRIPTION)
+    p.add_argument("--version", action="version", version=f"train-envs {package_version()}")
+    p.add_argument(
+        "--debug", action="store_true", help="show the traceback of an error (default: one line)"
+    )
     sub = p.add_subparsers(dest="command", required=True)
     pl = sub.add_parser("list", help="list scenarios, controllers, trains and tracks")
     pl.add_argument(
@@ -191,13 +206,30 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def error_line(exc: BaseException) -> str:
+    """One line for an error: its message (a ``ValueError``'s as is, others typed)."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, KeyError) and exc.args and isinstance(exc.args[0], str):
+        text = exc.args[0]
+    elif not isinstance(exc, ValueError):
+        text = f"{type(exc).__name__}: {text}"
+    return f"error: {text}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        if args.debug:
+            raise
+        print(str(exc) or "interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - every error: one line, exit code 2
+        if args.debug:
+            raise
+        print(error_line(exc), file=sys.stderr)
         return 2
 
 

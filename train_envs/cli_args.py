@@ -9,6 +9,7 @@ tuners or agents is found by name in the installed package metadata
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
@@ -26,7 +27,10 @@ def registered(group: str) -> dict[str, EntryPoint]:
 
 
 def parse_seeds(items: list[str] | None, flag: str = "--seeds") -> list[int] | None:
-    """Seeds as ``0 1 2``, ``0,1,2`` or inclusive ranges ``0-4``; ``None`` if none given."""
+    """Seeds as ``0 1 2``, ``0,1,2`` or inclusive ranges ``0-4``; ``None`` if none given.
+
+    Seeds are integers >= 0; a range a-b needs a <= b; ``ValueError`` naming the flag.
+    """
     if not items:
         return None
     out: list[int] = []
@@ -36,14 +40,33 @@ def parse_seeds(items: list[str] | None, flag: str = "--seeds") -> list[int] | N
             if not part:
                 continue
             try:
-                if "-" in part[1:]:
-                    lo, hi = part.split("-", 1)
-                    out.extend(range(int(lo), int(hi) + 1))
-                else:
-                    out.append(int(part))
+                lo, _, hi = part.partition("-") if "-" in part[1:] else (part, "", part)
+                lo_i, hi_i = int(lo), int(hi)
             except ValueError as exc:
-                raise ValueError(f"{flag}: {part!r} is not an integer or a range a-b") from exc
+                raise ValueError(f"{flag}: {part!r} is not an integer >= 0 or a range a-b") from exc
+            if lo_i < 0:
+                raise ValueError(f"{flag}: seeds are integers >= 0, got {part!r}")
+            if hi_i < lo_i:
+                raise ValueError(f"{flag}: range {part!r} is empty (write a-b with a <= b)")
+            out.extend(range(lo_i, hi_i + 1))
+    if not out:
+        raise ValueError(f"{flag}: no seed given")
     return out
+
+
+def writable_folder(path: str | Path, flag: str = "--out") -> Path:
+    """Create folder ``path`` if needed and check that a file can be written there."""
+    folder = Path(path)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise ValueError(
+            f"{flag}: folder {str(folder)!r} is not writable ({exc.strerror})"
+        ) from exc
+    return folder
 
 
 def json_object(text: str | None, flag: str) -> dict[str, Any] | None:
@@ -51,7 +74,10 @@ def json_object(text: str | None, flag: str) -> dict[str, Any] | None:
     if not text:
         return None
     if text.startswith("@"):
-        text = Path(text[1:]).read_text()
+        try:
+            text = Path(text[1:]).read_text()
+        except OSError as exc:
+            raise ValueError(f"{flag}: cannot read {text[1:]!r} ({exc.strerror})") from exc
     try:
         val = json.loads(text)
     except json.JSONDecodeError as exc:

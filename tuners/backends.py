@@ -12,14 +12,22 @@ One setting picks where the closed-loop episodes run:
   ``client``, or, with neither, a :class:`distributed.LocalCluster` of ``workers``
   single-threaded processes. Tasks go out with ``client.submit``.
 
-Failures never end the run: a task that raises is recorded (``on_error``) and
-re-submitted, up to ``max_retries`` times; a worker process that dies (a
-``BrokenProcessPool`` — the pool cannot tell which task killed it, so every task in
-flight counts one attempt) makes the pool restart and the unfinished tasks re-submitted;
-on Dask a lost worker's tasks are rescheduled by the scheduler itself (up to
-``distributed.scheduler.allowed-failures``, then they fail like an exception here). A
-task that fails ``max_retries + 1`` times is returned as :class:`Failure`; the problem
-turns it into an infeasible worst-value outcome.
+Failure accounting — an evaluation fails only by its own error:
+
+* a task that raises is recorded (``on_error``) and re-submitted, up to ``max_retries``
+  times; a task that fails ``max_retries + 1`` times is returned as :class:`Failure`
+  (the problem turns it into an infeasible worst-value outcome);
+* a :class:`~tuners.problem.ConfigError` (or an ``ImportError``) is the same for every
+  point: it is not retried, the batch stops and the error is raised at once;
+* a worker process that dies breaks the pool (``BrokenProcessPool``), which cannot tell
+  which task killed it: the pool restarts and every task in flight is re-submitted
+  without being charged. A task in flight at two breaks is then run alone; a break
+  while it is alone is its own failure (an attempt). So deaths from outside (``kill``,
+  the OOM killer hitting a neighbour) never make an evaluation fail;
+* workers ignore SIGINT (Ctrl-C stops the driver, which stops the pool) and exit
+  within a second when the driver dies (a daemon thread watches ``os.getppid()``);
+* on Dask a lost worker's tasks are rescheduled by the scheduler itself (up to
+  ``distributed.scheduler.allowed-failures``, then they fail like an exception here).
 
 :class:`Evaluations` is what a :class:`tuners.problem.TaskProblem` calls per batch: it
 answers points already evaluated (same problem fingerprint and bit-identical x) from
@@ -35,6 +43,8 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing as mp
 import os
+import signal
+import threading
 import time
 import traceback
 from abc import ABC, abstractmethod
@@ -45,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from tuners.problem import TaskProblem, run_task
+from tuners.problem import ConfigError, TaskProblem, run_task
 
 OnResult = Callable[[int, dict[str, Any]], None]
 OnError = Callable[[int, int, str, bool], None]
@@ -68,6 +78,10 @@ class Failure:
 
     error: str
     attempts: int
+
+
+#: task errors that are the same for every point: no retry, the run stops
+FATAL_ERRORS: tuple[type[BaseException], ...] = (ConfigError, ImportError)
 
 
 def _describe(exc: BaseException) -> str:
@@ -102,6 +116,10 @@ class Backend(ABC):
     def close(self) -> None:  # noqa: B027 - optional hook, nothing to release by default
         """Release workers (idempotent)."""
 
+    def terminate(self) -> None:
+        """Stop at once (Ctrl-C); by default the same as :meth:`close`."""
+        self.close()
+
     def __enter__(self) -> Backend:
         return self
 
@@ -129,6 +147,8 @@ class SerialBackend(Backend):
             while True:
                 try:
                     out = run_task(task)
+                except FATAL_ERRORS:
+                    raise
                 except Exception as exc:  # noqa: BLE001 - any task error is retried
                     err = _describe(exc)
                     if self._failed(i, attempts, err, on_error):
@@ -145,8 +165,32 @@ class SerialBackend(Backend):
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
 
 
+def _watch_parent(parent: int, interval_s: float = 0.5) -> None:
+    """Exit this worker when its parent process is gone (re-parented to another pid)."""
+    while True:
+        time.sleep(interval_s)
+        if os.getppid() != parent:
+            os._exit(0)
+
+
+def _init_worker(threads: int | None, parent: int) -> None:
+    """Worker initializer: ignore SIGINT, exit with the driver, cap BLAS/OpenMP threads.
+
+    Ctrl-C reaches the whole process group; the driver handles it and stops the pool,
+    so the workers ignore it (no traceback per worker). A daemon thread ends the worker
+    when the driver dies (``kill -9`` included): ``os.getppid()`` changes to the
+    re-parenting process. ``threads``: see :func:`_limit_worker_threads`.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if os.getppid() != parent:  # the driver died while this worker started
+        os._exit(0)
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+    if threads:
+        _limit_worker_threads(threads)
+
+
 def _limit_worker_threads(threads: int) -> None:
-    """Worker initializer: cap BLAS/OpenMP threads (processes x threads <= cores).
+    """Cap BLAS/OpenMP threads (processes x threads <= cores).
 
     Without it every worker's OpenBLAS starts one thread per core and ``workers``
     processes oversubscribe the machine (on 2 cores the pool was no faster than serial).
@@ -195,13 +239,11 @@ class ProcessBackend(Backend):
 
     def _get_pool(self) -> cf.ProcessPoolExecutor:
         if self._pool is None:
-            init = (
-                {"initializer": _limit_worker_threads, "initargs": (self.threads_per_worker,)}
-                if self.threads_per_worker
-                else {}
-            )
             self._pool = cf.ProcessPoolExecutor(
-                max_workers=self._workers, mp_context=mp.get_context(self.start_method), **init
+                max_workers=self._workers,
+                mp_context=mp.get_context(self.start_method),
+                initializer=_init_worker,
+                initargs=(self.threads_per_worker, os.getpid()),
             )
         return self._pool
 
@@ -214,42 +256,73 @@ class ProcessBackend(Backend):
     def run(self, tasks, on_result=None, on_error=None):
         results: list[Any] = [None] * len(tasks)
         attempts = [0] * len(tasks)
+        breaks = [0] * len(tasks)  # pool breaks a task was in flight at (not charged)
         todo = list(range(len(tasks)))
         while todo:
+            suspects = [i for i in todo if breaks[i] >= 2]
+            batch = suspects[:1] if suspects else todo  # a suspect runs alone
             pool = self._get_pool()
             futures: dict[cf.Future, int] = {}
             try:
-                for i in todo:
+                for i in batch:
                     futures[pool.submit(run_task, tasks[i])] = i
                 broken = False
             except BrokenProcessPool:
                 broken = True  # submitted ones fail below; the rest stay in ``todo``
             retry: list[int] = []
+            died: list[int] = []
             pending = set(futures)
-            while pending:
-                done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-                for fut in sorted(done, key=lambda f: futures[f]):
-                    i = futures[fut]
-                    exc = fut.exception()
-                    if exc is None:
-                        results[i] = fut.result()
-                        if on_result is not None:
-                            on_result(i, results[i])
-                        continue
-                    if isinstance(exc, BrokenProcessPool):
-                        broken = True
-                        err = f"worker process died: {_describe(exc)}"
-                    else:
-                        err = _describe(exc)
-                    if self._failed(i, attempts, err, on_error):
-                        retry.append(i)
-                    else:
-                        results[i] = Failure(err, attempts[i])
+            try:
+                while pending:
+                    done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+                    for fut in sorted(done, key=lambda f: futures[f]):
+                        i = futures[fut]
+                        exc = fut.exception()
+                        if exc is None:
+                            results[i] = fut.result()
+                            if on_result is not None:
+                                on_result(i, results[i])
+                        elif isinstance(exc, BrokenProcessPool):
+                            broken = True
+                            died.append(i)
+                        elif isinstance(exc, FATAL_ERRORS):
+                            raise exc
+                        elif self._failed(i, attempts, _describe(exc), on_error):
+                            retry.append(i)
+                        else:
+                            results[i] = Failure(_describe(exc), attempts[i])
+            except BaseException:
+                self.terminate()
+                raise
+            if suspects and died:  # a suspect alone in the pool: its own failure
+                (i,) = died
+                err = "worker process died while running this evaluation alone"
+                if self._failed(i, attempts, err, on_error):
+                    retry.append(i)
+                else:
+                    results[i] = Failure(err, attempts[i])
+            else:
+                for i in died:
+                    breaks[i] += 1
+                    retry.append(i)
             submitted = set(futures.values())
             todo = sorted(retry + [i for i in todo if i not in submitted])
             if broken:
                 self._restart()
         return results
+
+    def terminate(self) -> None:
+        """Stop the workers now (Ctrl-C, a fatal error): running tasks are abandoned."""
+        if self._pool is None:
+            return
+        procs = list((getattr(self._pool, "_processes", None) or {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            if proc.is_alive():
+                proc.terminate()
+        for proc in procs:
+            proc.join(timeout=5)
+        self._pool = None
 
     def close(self) -> None:
         if self._pool is not None:
@@ -320,6 +393,10 @@ class DaskBackend(Backend):
             i = index.pop(fut.key)
             try:
                 out = fut.result()
+            except FATAL_ERRORS:
+                for f in futs:
+                    f.cancel()
+                raise
             except Exception as exc:  # noqa: BLE001 - incl. KilledWorker
                 err = _describe(exc)
                 if self._failed(i, attempts, err, on_error):
@@ -373,6 +450,7 @@ class EvalStats:
     run: int = 0
     failed_attempts: int = 0
     failed_final: int = 0
+    worker_deaths: int = 0  # pool breaks (in-flight tasks re-submitted, not charged)
     task_time_s: float = 0.0
     batch_time_s: float = 0.0
     store_time_s: float = 0.0
@@ -441,7 +519,12 @@ class Evaluations:
             if self.store is not None and not final:  # a final failure is record()ed
                 self.store.record_failure(problem, keys[i], X[i], error, attempt, generation, i)
 
+        restarts = getattr(self.backend, "restarts", 0)
         results = self.backend.run(tasks, on_result=on_result, on_error=on_error)
+        deaths = getattr(self.backend, "restarts", 0) - restarts
+        if deaths:
+            self.stats.worker_deaths += deaths
+            self.stats.errors.append(f"worker process died {deaths} time(s); pool restarted")
         failures = [r for r in results if isinstance(r, Failure)]
         if failures and len(failures) == len(results) and self.stats.run == 0:
             hint = ""

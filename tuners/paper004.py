@@ -32,8 +32,9 @@ from train_envs.reproduce.paper004 import (
 __all__ = ["reproduce_paper004", "tune_paper004"]
 
 
-def tune_paper004(algo: str, pop: int, iters: int, seeds: Sequence[int], storage: str | None,
-                  seed: int):
+def tune_paper004(
+    algo: str, pop: int, iters: int, seeds: Sequence[int], storage: str | None, seed: int
+):
     """One tuner's run on 004's setting (a :class:`tuners.run.TuneResult`), resumed."""
     from tuners.run import tune
 
@@ -46,7 +47,7 @@ def tune_paper004(algo: str, pop: int, iters: int, seeds: Sequence[int], storage
         # one study per code version: a table is never answered from evaluations that
         # older code made
         study=f"paper004-{algo}-{pop}x{iters}-s{seed}-{{code}}",
-        resume=True,
+        resume="auto",
         seeds=seeds,
         config=CONFIG,
         constraints=CONSTRAINTS,

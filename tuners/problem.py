@@ -68,9 +68,22 @@ __all__ = [
     "PymooTask",
     "PymooTaskProblem",
     "TaskProblem",
+    "ConfigError",
+    "metric_columns",
     "objective_column",
     "run_task",
 ]
+
+
+class ConfigError(ValueError):
+    """A task cannot run for a reason that is the same for every point (an unknown
+    metric, an env that cannot be made): the run stops at the first one."""
+
+
+def metric_columns(df: Any) -> list[str]:
+    """The numeric metric columns of an episode table (what objectives can name)."""
+    skip = ("seed", "episode")
+    return sorted(c for c in df.columns if df[c].dtype.kind in "fiub" and c not in skip)
 
 
 def objective_column(name: str) -> str:
@@ -99,7 +112,11 @@ def run_task(task: Any) -> dict[str, Any]:
 # ------------------------------------------------------------------------ tasks
 @dataclass(frozen=True)
 class EnvTask:
-    """Evaluate fixed controller parameters on ``env_id`` over ``seeds``."""
+    """Evaluate fixed controller parameters on ``env_id`` over ``seeds``.
+
+    A metric that the env does not report is a :class:`ConfigError` (the same for every
+    point: the backends fail fast on it instead of retrying).
+    """
 
     env_id: str
     params: tuple[tuple[str, float], ...]
@@ -126,9 +143,8 @@ class EnvTask:
         cols = list(self.objectives) + [c for c, _ in self.constraints]
         missing = [c for c in cols if c not in df.columns]
         if missing:
-            raise KeyError(
-                f"{self.env_id}: metric(s) {missing} not reported; available: "
-                f"{sorted(c for c in df.columns if df[c].dtype.kind == 'f')}"
+            raise ConfigError(
+                f"{self.env_id}: metric(s) {missing} not reported; available: {metric_columns(df)}"
             )
         F = [float(df[c].mean()) for c in self.objectives]
         G = [float(df[c].max()) - float(lim) for c, lim in self.constraints]
@@ -409,6 +425,33 @@ class EnvTuningProblem(TaskProblem):
             "constraint_mode": self.constraint_mode,
             "penalty": self.penalty,
         }
+
+    def check_metrics(self) -> None:
+        """``ValueError`` naming the objectives/constraints the env does not report.
+
+        Runs one env step of the defaults (the columns of the metrics table do not depend
+        on the episode's length), so a misspelt name fails before any work starts.
+        """
+        from train_envs.envs.evaluation import evaluate_env_params
+
+        df = evaluate_env_params(
+            self.env_id,
+            self.task_params(self.default_x()),
+            seeds=[self.seeds[0]],
+            config={**self.config, "max_episode_steps": 1},
+            label="check",
+        )
+        available = metric_columns(df)
+        for kind, names in (
+            ("objectives", self.objective_columns),
+            ("constraints", [c for c, _ in self.constraints]),
+        ):
+            bad = [n for n in names if n not in available]
+            if bad:
+                raise ValueError(
+                    f"{kind} {bad} are not metrics of {self.env_id}; aliases "
+                    f"{sorted(OBJECTIVE_ALIASES)}, metrics {available}"
+                )
 
     def with_seeds(self, seeds: Sequence[int]) -> EnvTuningProblem:
         """The same problem on other scenario seeds (e.g. held-out ones)."""

@@ -5,9 +5,12 @@ A run = a :class:`tuners.problem.EnvTuningProblem` (or any
 ``mopso``, or pymoo's ``nsga2`` / ``moead`` as baselines), an evaluation backend
 (:mod:`tuners.backends`) and an Optuna study (:mod:`tuners.storage`). Each generation is
 one batch of evaluations; every finished evaluation is written to the study at once and
-the algorithm is checkpointed after every generation, so ``resume=True`` continues a
-killed run without re-running any finished evaluation and ends with exactly the
-uninterrupted run's result (same seed). A run records the fingerprint of the code that
+a checkpoint (plain data) after every generation, so ``resume=True`` continues a killed
+run — the algorithm rebuilt from the stored settings and replayed from the stored
+evaluations (:mod:`tuners.checkpoint`) — without re-running any finished evaluation and
+ends with exactly the uninterrupted run's result. Settings left out on resume take the
+stored values; a changed one is refused by name (:mod:`tuners.settings`); one process
+writes a study at a time (:mod:`tuners.lease`). A run records the fingerprint of the code that
 evaluates (:func:`tuners.storage.code_fingerprint`); resuming it with other code is
 refused (its cached evaluations would answer for the new code) unless
 ``allow_code_change=True``. ``{code}`` in a study name stands for that fingerprint's
@@ -42,35 +45,43 @@ import numpy as np
 import pandas as pd
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.callback import Callback
-from pymoo.termination.max_gen import MaximumGenerationTermination
-from pymoo.util.display.display import Display
 
 from tuners.backends import EvalStats, Evaluations, make_backend
+from tuners.checkpoint import generations_done, replay, set_iters
 from tuners.mowoa import (
     MOWOA,
     InitialSampling,
     nondominated,
-    select_by_cosine,
     tchebycheff,
-    weight_vectors,
 )
 from tuners.problem import EnvTuningProblem, TaskProblem
 from tuners.pso import MOPSO, PSO
+from tuners.selection import (
+    NORMALIZATIONS,
+    run_weight_vectors,
+    summarize,
+)
+from tuners.settings import DEFAULTS, resolve_settings
 from tuners.storage import (
     CONFIG_ATTR,
+    StudyExistsError,
     StudyStore,
     checkpoint_info,
     code_fingerprint,
     evaluations_frame,
     load_study,
+    stored_run_config,
 )
 
 ALGORITHMS = ("mowoa", "pso", "mopso", "nsga2", "moead")
+#: algorithms with one weight vector per individual
+DECOMPOSITION = ("mowoa", "mopso", "moead")
 DEFAULT_STORAGE = "sqlite:///tuning.db"
 
 __all__ = [
     "ALGORITHMS",
     "DEFAULT_STORAGE",
+    "TuneInterrupted",
     "TuneResult",
     "load_result",
     "make_algorithm",
@@ -82,22 +93,6 @@ __all__ = [
 
 
 # ----------------------------------------------------------------- algorithms
-def run_weight_vectors(n_obj: int, n: int, target: Sequence[float] | None = None) -> np.ndarray:
-    """The run's subproblem weight vectors: :func:`tuners.mowoa.weight_vectors` with the
-    one closest in angle to ``target`` replaced by the (normalised) target itself, so
-    that the user's preference is one of the subproblems and 004's cosine pick selects
-    exactly its elite."""
-    W = weight_vectors(n_obj, n).copy()
-    if target is None or n_obj == 1:
-        return W
-    w = np.asarray(target, float)
-    w = np.maximum(w / w.sum(), 1e-6)
-    w = w / w.sum()
-    cos = W @ w / (np.linalg.norm(W, axis=1) * np.linalg.norm(w))
-    W[int(np.argmax(cos))] = w
-    return W
-
-
 def make_algorithm(
     algo: str,
     pop: int,
@@ -137,96 +132,6 @@ def make_algorithm(
             **kwargs,
         )
     raise ValueError(f"algo must be one of {ALGORITHMS}, got {algo!r}")
-
-
-# -------------------------------------------------------------------- results
-NORMALIZATIONS = ("auto", "defaults", "pareto")
-#: with normalization="defaults", an objective in which the defaults are (nearly) the best
-#: found is scaled by at least this fraction of the median evaluation's distance to the best
-DEFAULTS_SCALE_FLOOR = 0.05
-
-
-def summarize(
-    df: pd.DataFrame,
-    objectives: Sequence[str],
-    target_weights: Sequence[float] | None = None,
-    n_weights: int = 40,
-    f_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
-    normalization: str = "auto",
-    default_key: str | None = None,
-) -> tuple[pd.DataFrame, pd.Series | None, np.ndarray | None, np.ndarray | None]:
-    r"""Mark the Pareto set and the selected solution in an evaluations frame.
-
-    Adds columns ``pareto``, ``selected`` and ``tchebycheff`` (normalised Tchebycheff
-    value :math:`\max_i w_i (f_i − z^*_i)/s_i` under the target weights) to ``df`` in
-    place. The pick is :func:`tuners.mowoa.select_by_cosine` over the run's
-    ``n_weights`` subproblem weight vectors (:func:`run_weight_vectors`, which contain
-    the target, so the pick is the Pareto solution with the lowest Tchebycheff value
-    under the target weights; ties: lowest weighted sum). :math:`z^*` is the best
-    feasible value per objective; the scale :math:`s`:
-
-    * ``f_bounds=(lower, upper)`` given: ``upper − lower`` (004's tolerance values);
-    * ``"defaults"``: the defaults' distance to the best, :math:`s_i = f^{def}_i − z^*_i`,
-      floored at 5 % of the median feasible evaluation's distance to the best (for
-      objectives in which the defaults are about the best), so the defaults score
-      :math:`\max_i w_i` and a solution scores lower only if it is better than them in
-      every objective that carries weight; as the defaults are evaluated, the pick is
-      never worse than them on the tuning seeds — needs the evaluated defaults
-      (``default_key``);
-    * ``"pareto"``: the Pareto set's range (nadir − ideal). With many objectives nearly
-      every evaluation is non-dominated and this range is set by very poor solutions;
-    * ``"auto"``: ``"defaults"`` if the defaults were evaluated and feasible, else
-      ``"pareto"``.
-
-    Returns (Pareto rows, selected row or None, ideal, ideal + scale); the mode used is
-    ``df.attrs["normalization"]``.
-    """
-    if normalization not in NORMALIZATIONS:
-        raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
-    objectives = list(objectives)
-    m = len(objectives)
-    w = np.full(m, 1.0 / m) if target_weights is None else np.asarray(target_weights, float)
-    w = w / w.sum()
-    df["pareto"] = False
-    df["selected"] = False
-    df["tchebycheff"] = np.nan
-    if len(df) == 0:
-        return df.iloc[0:0], None, None, None
-    feas = df["feasible"].to_numpy(bool)
-    if not feas.any():
-        return df.iloc[0:0], None, None, None
-    F = df.loc[feas, objectives].to_numpy(float)
-    idx_feas = np.flatnonzero(feas)
-    nd = idx_feas[nondominated(F)]
-    ideal = F.min(axis=0)
-    F_nd = df.iloc[nd][objectives].to_numpy(float)
-    drow = None
-    if default_key is not None and "key" in df:
-        hit = np.flatnonzero((df["key"] == default_key).to_numpy() & feas)
-        drow = int(hit[0]) if len(hit) else None
-    mode = normalization
-    if f_bounds is not None:
-        mode = "bounds"
-        nadir = ideal + (np.asarray(f_bounds[1], float) - np.asarray(f_bounds[0], float))
-    else:
-        if mode == "auto":
-            mode = "defaults" if drow is not None else "pareto"
-        if mode == "defaults":
-            if drow is None:
-                raise ValueError("normalization='defaults' needs the evaluated, feasible defaults")
-            fd = df.iloc[drow][objectives].to_numpy(float)
-            typical = np.median(F, axis=0) - ideal  # robust to the outliers of a search
-            floor = DEFAULTS_SCALE_FLOOR * np.maximum(typical, 0.0)
-            nadir = ideal + np.maximum(fd - ideal, np.maximum(floor, 1e-12))
-        else:
-            nadir = np.where(F_nd.max(axis=0) > ideal, F_nd.max(axis=0), F.max(axis=0))
-    df.attrs["normalization"] = mode
-    df.loc[df.index[nd], "pareto"] = True
-    df.loc[df.index[idx_feas], "tchebycheff"] = tchebycheff(F, w, ideal, nadir)
-    lam = run_weight_vectors(m, max(int(n_weights), 1), w)
-    pick = nd[select_by_cosine(F_nd, w, ideal, nadir, lam)]
-    df.loc[df.index[pick], "selected"] = True
-    return df.iloc[nd], df.iloc[pick], ideal, nadir
 
 
 @dataclass
@@ -398,9 +303,9 @@ def _result_from_frame(
 # ----------------------------------------------------------------------- tune
 def tune(
     env_id: str | TaskProblem,
-    algo: str = "mowoa",
-    pop: int = 40,
-    iters: int = 100,
+    algo: str | None = None,
+    pop: int | None = None,
+    iters: int | None = None,
     *,
     workers: int | None = None,
     backend: str = "processes",
@@ -408,18 +313,18 @@ def tune(
     dask_client: Any = None,
     storage: str | Any | None = DEFAULT_STORAGE,
     study: str | None = None,
-    resume: bool = False,
-    seeds: Sequence[int] = (0,),
+    resume: bool | str = False,
+    seeds: Sequence[int] | None = None,
     objectives: Sequence[str] | None = None,
     target_weights: Sequence[float] | None = None,
     f_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
-    normalization: str = "auto",
-    seed: int = 1,
+    normalization: str | None = None,
+    seed: int | None = None,
     config: Mapping[str, Any] | None = None,
     params: Sequence[str] | None = None,
-    space: str = "unit",
+    space: str | None = None,
     constraints: Mapping[str, float] | None = None,
-    include_defaults: bool = True,
+    include_defaults: bool | None = None,
     max_retries: int = 2,
     algo_kwargs: Mapping[str, Any] | None = None,
     progress: bool = False,
@@ -429,36 +334,100 @@ def tune(
 ) -> TuneResult:
     """Tune the controller of ``env_id`` (or optimise any TaskProblem); see module doc.
 
+    A setting left as ``None`` takes its default in a new study (shown in brackets)
+    and the stored value on resume; on resume a setting given with another value is
+    refused, except ``iters`` (:mod:`tuners.settings`).
+
     Args:
         env_id: registered env id, or a ready :class:`TaskProblem` (then ``seeds``,
-            ``objectives``, ``config``, ``params``, ``space``, ``constraints`` are unused).
-        algo: ``mowoa`` | ``pso`` | ``mopso`` | ``nsga2`` | ``moead``.
-        pop, iters: population size and generations (incl. the initial one).
+            ``objectives``, ``config``, ``params``, ``space``, ``constraints`` are unused);
+            on resume of an env study ``None`` takes the stored env id.
+        algo: ``mowoa`` | ``pso`` | ``mopso`` | ``nsga2`` | ``moead`` [mowoa].
+        pop, iters: population size [40] and generations incl. the initial one [100].
         workers, backend, dask_address, dask_client: evaluation backend
             (``serial`` | ``processes`` | ``dask``; workers default: all cores).
         storage: Optuna storage URL (default ``sqlite:///tuning.db``); None = in memory.
-        study: study name (default ``<env>-<algo>-s<seed>``); resume: continue it.
-        seeds: scenario seeds averaged per evaluation.
+        study: study name (default ``<env>-<algo>-s<seed>``).
+        resume: ``True``: continue the study (an error if it holds no run);
+            ``"auto"``: continue it if it holds one, else start it; ``False``: start it
+            (an error if it holds a run).
+        seeds: scenario seeds averaged per evaluation [0].
         objectives: objective aliases / metric columns (default: 004's five available).
         target_weights: weights of the final pick and of ``pso`` (default: equal).
         f_bounds: (lower, upper) per objective: 004's tolerance bounds; the Tchebycheff
             scale becomes upper − lower (algorithms and final pick); default adaptive.
         normalization: scale of the final pick and reported Tchebycheff values when
             ``f_bounds`` is not given: ``auto`` | ``defaults`` | ``pareto``
-            (:func:`summarize`).
-        seed: random seed of the algorithm.
+            (:func:`summarize`) [auto].
+        seed: random seed of the algorithm [1].
         config, params, space, constraints: see :class:`EnvTuningProblem`.
-        include_defaults: start the initial population with the default parameters.
-        max_retries: re-submissions of a failing evaluation.
+        include_defaults: start the initial population with the default parameters [True].
+        max_retries: re-submissions of an evaluation that failed by its own error.
         algo_kwargs: extra keyword arguments of the algorithm.
         progress: show a progress bar (generation, evaluations/s, best Tchebycheff value
             under the target weights, normalised by the first generation's range).
-        callback: pymoo callback called after every generation.
+        callback: pymoo callback called after every generation (not the replayed ones).
         on_evaluation: called with (key, outcome, generation) after each new evaluation.
         allow_code_change: resume a study that other code started (its evaluations and
             cache are kept as they are; the code fingerprints are recorded).
+
+    Raises:
+        TuneInterrupted: on Ctrl-C (a ``KeyboardInterrupt``), after the pool is stopped;
+            it says how many evaluations the study holds and how to resume.
     """
     t_start = time.perf_counter()
+    if resume not in (True, False, "auto"):
+        raise ValueError(f"resume must be True, False or 'auto', got {resume!r}")
+    given = {
+        "algo": algo,
+        "pop": pop,
+        "iters": iters,
+        "seed": seed,
+        "seeds": None if seeds is None else [int(s) for s in seeds],
+        "objectives": None if objectives is None else list(objectives),
+        "constraints": None if constraints is None else dict(constraints),
+        "config": None if config is None else dict(config),
+        "params": None if params is None else list(params),
+        "space": space,
+        "target_weights": None if target_weights is None else list(target_weights),
+        "f_bounds": f_bounds,
+        "normalization": normalization,
+        "include_defaults": include_defaults,
+        "algo_kwargs": None if algo_kwargs is None else dict(algo_kwargs),
+    }
+    code = code_fingerprint()
+    if isinstance(env_id, TaskProblem):
+        env_name = getattr(env_id, "env_id", getattr(env_id, "name_", type(env_id).__name__))
+    else:
+        env_name = env_id
+    study_name = (
+        study
+        or f"{str(env_name).split('/')[-1]}-{algo or DEFAULTS['algo']}-s"
+        f"{DEFAULTS['seed'] if seed is None else seed}"
+    ).replace("{code}", code[:8])
+    has_run, stored = stored_run_config(study_name, storage)
+    if resume is True and not has_run:
+        where = storage if isinstance(storage, str) else "this storage"
+        raise ValueError(
+            f"--resume: study {study_name!r} holds no run in {where} (see `train-envs tune "
+            "list`); leave out --resume to start it"
+        )
+    resuming = bool(resume) and has_run
+    if not resuming and has_run:
+        raise StudyExistsError(
+            f"study {study_name!r} already holds a run; pass resume=True (--resume) to "
+            "continue it or choose another study name"
+        )
+    s = resolve_settings(given, stored if resuming else None, study_name)
+    if env_name is None:
+        env_name = env_id = (stored or {}).get("env_id")
+    elif resuming and not isinstance(env_id, TaskProblem) and stored.get("env_id") != env_id:
+        raise ValueError(
+            f"cannot resume study {study_name!r}: env_id (stored {stored.get('env_id')!r}, "
+            f"given {env_id!r})"
+        )
+    algo, pop, iters, seed = s["algo"], int(s["pop"]), int(s["iters"]), int(s["seed"])
+    normalization = s["normalization"]
     if normalization not in NORMALIZATIONS:
         raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
     if algo not in ALGORITHMS:
@@ -470,40 +439,44 @@ def tune(
         problem = env_id
         if algo == "moead" and problem.n_ieq_constr:
             raise ValueError("moead has no constraint handling: build the problem in penalty mode")
-        env_name = getattr(problem, "env_id", getattr(problem, "name_", type(problem).__name__))
     else:
         problem = EnvTuningProblem(
             env_id,
-            objectives=objectives,
-            seeds=seeds,
-            config=config,
-            params=params,
-            space=space,
-            constraints=constraints,
+            objectives=s["objectives"],
+            seeds=s["seeds"],
+            config=s["config"],
+            params=s["params"],
+            space=s["space"],
+            constraints=s["constraints"],
             constraint_mode=mode,
         )
-        env_name = env_id
+        if not resuming:  # unknown metric names: one error here, before any work
+            problem.check_metrics()
     m = problem.n_obj
+    target_weights, f_bounds = s["target_weights"], s["f_bounds"]
     if target_weights is not None and len(target_weights) != m:
         raise ValueError(
             f"target_weights needs {m} values ({problem.obj_names}), got {target_weights}"
         )
+    if f_bounds is not None and any(len(b) != m for b in f_bounds):
+        raise ValueError(f"f_bounds needs (lower, upper) with {m} values each, got {f_bounds}")
+    if algo in DECOMPOSITION and 2 < m and pop < m:
+        raise ValueError(
+            f"pop {pop} is below the {m} objectives: {algo} gives each individual one weight "
+            f"vector and needs at least one per objective (pop >= {m}), or use fewer objectives"
+        )
     weights = list(np.full(m, 1.0 / m) if target_weights is None else target_weights)
-    code = code_fingerprint()
-    study_name = (study or f"{str(env_name).split('/')[-1]}-{algo}-s{seed}").replace(
-        "{code}", code[:8]
-    )
     initial_X = None
     default_key = None
-    if include_defaults and hasattr(problem, "default_x"):
+    if s["include_defaults"] and hasattr(problem, "default_x"):
         initial_X = problem.default_x()[None, :]
         default_key = problem.key(initial_X[0])
     run_config = {
         "env_id": str(env_name),
         "algo": algo,
-        "pop": int(pop),
-        "iters": int(iters),
-        "seed": int(seed),
+        "pop": pop,
+        "iters": iters,
+        "seed": seed,
         "seeds": list(getattr(problem, "seeds", []) or []),
         "objective_names": list(problem.obj_names),
         "constraint_names": list(problem.constr_names),
@@ -511,19 +484,64 @@ def tune(
         "target_weights": [float(v) for v in weights],
         "f_bounds": None if f_bounds is None else [list(map(float, b)) for b in f_bounds],
         "normalization": normalization,
-        "include_defaults": bool(include_defaults),
-        "algo_kwargs": dict(algo_kwargs or {}),
+        "include_defaults": bool(s["include_defaults"]),
+        "algo_kwargs": dict(s["algo_kwargs"] or {}),
         "fingerprint": problem.fingerprint_hash(),
         "problem": problem.fingerprint(),
         "default_key": default_key,
         "code": code,
     }
+    if resuming and stored.get("fingerprint") != run_config["fingerprint"]:
+        old, new = stored.get("problem") or {}, run_config["problem"]
+        keys = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        raise ValueError(
+            f"cannot resume study {study_name!r}: the problem differs in "
+            + "; ".join(f"{k} (stored {old.get(k)!r}, now {new.get(k)!r})" for k in keys)
+        )
     checks = ("fingerprint", "algo", "pop", "seed") + (() if allow_code_change else ("code",))
-    store = StudyStore(storage, study_name, problem, run_config, resume=resume, check_keys=checks)
+    store = StudyStore(storage, study_name, problem, run_config, resume=resuming, check_keys=checks)
+    try:
+        return _run(
+            store,
+            problem,
+            run_config,
+            initial_X,
+            weights,
+            f_bounds,
+            storage,
+            backend=make_backend(
+                backend, workers, address=dask_address, client=dask_client, max_retries=max_retries
+            ),
+            progress=progress,
+            callback=callback,
+            on_evaluation=on_evaluation,
+            t_start=t_start,
+        )
+    finally:
+        store.close()
+
+
+def _run(
+    store: StudyStore,
+    problem: TaskProblem,
+    cfg: dict[str, Any],
+    initial_X: np.ndarray | None,
+    weights: list[float],
+    f_bounds: Any,
+    storage: Any,
+    *,
+    backend: Any,
+    progress: bool,
+    callback: Callback | None,
+    on_evaluation: Callable[[str, dict[str, Any], int | None], None] | None,
+    t_start: float,
+) -> TuneResult:
+    """The generation loop of :func:`tune` on an opened store (replay, run, result)."""
+    algo, pop, iters, seed = cfg["algo"], cfg["pop"], cfg["iters"], cfg["seed"]
+    study_name = store.study_name
+    checkpoint = store.load_checkpoint() if store.resumed else None
     cache = store.load_cache() if store.resumed else {}
-    be = make_backend(
-        backend, workers, address=dask_address, client=dask_client, max_retries=max_retries
-    )
+    be = backend
     bar = None
     t_loop = time.perf_counter()
 
@@ -536,54 +554,54 @@ def tune(
 
     evals = Evaluations(be, store, cache, on_evaluation=_on_evaluation)
     problem.runner = evals
-
-    algorithm = store.load_checkpoint() if store.resumed else None
-    if algorithm is not None:
-        algorithm.problem = problem
-        algorithm.callback = callback if callback is not None else Callback()
-        algorithm.display = Display(algorithm.output, verbose=False)
-        algorithm.history = []
-        term = MaximumGenerationTermination(iters)
-        term.perc = (algorithm.n_iter - 1) / iters
-        algorithm.termination = term
-    else:
-        kw = dict(algo_kwargs or {})
-        if f_bounds is not None and algo in ("mowoa", "mopso", "pso"):
-            kw.setdefault("f_bounds", f_bounds)
-        algorithm = make_algorithm(
-            algo, pop, problem, target_weights=weights, initial_X=initial_X, **kw
-        )
-        algorithm.setup(
-            problem,
-            termination=("n_gen", iters),
-            seed=seed,
-            verbose=False,
-            callback=callback if callback is not None else Callback(),
-        )
-
-    bar_ref: dict[str, np.ndarray] = {}  # frozen normalisation of the bar's best value
-    if progress:
-        from tqdm.auto import tqdm
-
-        done = (algorithm.n_iter - 1) if algorithm.n_iter else 0
-        bar = tqdm(total=iters, initial=min(done, iters), desc=study_name, unit="gen")
-    t_loop = time.perf_counter()
+    kw = dict(cfg["algo_kwargs"] or {})
+    if f_bounds is not None and algo in ("mowoa", "mopso", "pso"):
+        kw.setdefault("f_bounds", f_bounds)
+    schedule = [[1, iters]] if checkpoint is None else [list(s) for s in checkpoint["schedule"]]
+    algorithm = make_algorithm(
+        algo, pop, problem, target_weights=weights, initial_X=initial_X, **kw
+    )
+    algorithm.setup(
+        problem,
+        termination=("n_gen", schedule[0][1]),
+        seed=seed,
+        verbose=False,
+        callback=callback if callback is not None else Callback(),
+    )
     try:
+        if checkpoint is not None:
+            replay(algorithm, checkpoint, study_name)
+            if schedule[-1][1] != iters:  # a resume with another budget
+                schedule.append([generations_done(algorithm) + 1, iters])
+            set_iters(algorithm, iters)
+        bar_ref: dict[str, np.ndarray] = {}  # frozen normalisation of the bar's best value
+        if progress:
+            from tqdm.auto import tqdm
+
+            done = generations_done(algorithm)
+            bar = tqdm(total=iters, initial=min(done, iters), desc=study_name, unit="gen")
+        t_loop = time.perf_counter()
         while algorithm.has_next():
             algorithm.next()
             t_ck = time.perf_counter()
-            store.save_checkpoint(algorithm)
+            store.save_checkpoint(algorithm, schedule)
+            if store.lease is not None:
+                store.lease.check()
             evals.stats.checkpoint_time_s += time.perf_counter() - t_ck
             if bar is not None:
                 rate = evals.stats.run / max(time.perf_counter() - t_loop, 1e-9)
                 bar.update(1)
                 bar.set_postfix(
-                    gen=algorithm.n_iter - 1,
+                    gen=generations_done(algorithm),
                     evals=evals.stats.run,
                     evals_per_s=f"{rate:.2f}",
                     best=f"{_best_scalar(evals.cache, weights, f_bounds, bar_ref):.4g}",
                 )
         res = algorithm.result()
+    except KeyboardInterrupt as exc:
+        be.terminate()
+        n = len(store.load_cache())
+        raise TuneInterrupted(study_name, storage, n) from exc
     finally:
         if bar is not None:
             bar.close()
@@ -599,16 +617,28 @@ def tune(
         algo,
         list(problem.obj_names),
         weights,
-        default_key,
+        cfg["default_key"],
         list(problem.var_names),
         pop,
         f_bounds,
-        normalization,
+        cfg["normalization"],
     )
     out.pymoo_result = res
     out.stats = evals.stats
     out.wall_time_s = time.perf_counter() - t_start
     return out
+
+
+class TuneInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped :func:`tune`; the study keeps every finished evaluation."""
+
+    def __init__(self, study_name: str, storage: Any, n_evaluations: int) -> None:
+        self.study_name, self.storage, self.n_evaluations = study_name, storage, n_evaluations
+        where = f" --storage {storage}" if isinstance(storage, str) else ""
+        super().__init__(
+            f"interrupted after {n_evaluations} evaluations; resume with: train-envs tune "
+            f"--study {study_name}{where} --resume"
+        )
 
 
 def _best_scalar(

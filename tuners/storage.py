@@ -1,64 +1,62 @@
 """Persistence of a tuning run in an Optuna study: evaluations, checkpoints, resume.
 
-Layout of the study (any Optuna storage: an SQLite file — ``sqlite:///tuning.db`` is
+Layout of the study (any Optuna RDB storage: an SQLite file — ``sqlite:///tuning.db`` is
 :func:`tuners.run.tune`'s default —, a PostgreSQL/MySQL URL, or in memory), readable by
 ``optuna-dashboard sqlite:///tuning.db``:
 
 * directions: ``minimize`` for every objective; ``study.metric_names`` = objective names;
-* study user attr ``tuner_config``: the run settings (env id, algorithm, population,
-  iterations, seed, objectives, seeds, target weights, problem fingerprint);
+* study user attr ``tuner_config``: the run settings (:mod:`tuners.settings`);
 * **one trial per finished evaluation** (written as soon as it finishes):
   ``params`` = the controller's parameter values (FloatDistribution with the spec's
-  bounds and log scale), ``values`` = the objective vector (mean over the seeds),
-  ``constraints`` (Optuna's feasibility, shown by the dashboard) = g_j, user attr
+  bounds and log scale), ``values`` = the objective vector (mean over the seeds), the
+  constraint values g_j under Optuna's own constraints key (system attr
+  ``constraints``, a list in ``constraint_names`` order — what Optuna's samplers write,
+  so ``study.best_trials`` and optuna-dashboard honour feasibility), user attr
   ``generation`` and one packed user attr ``tuner`` = {``key`` (cache key), ``x`` (the
   exact search-space vector), ``F``, ``G``, ``seeds``, ``metrics`` (per-seed values),
   ``generation``, ``batch_index``, ``wall_time_s``, ``worker``}. An evaluation that
-  failed on every retry is one trial in state FAIL with ``final=True``, its ``error``
-  (also a top-level user attr) and the worst-value ``F``/``G`` it was given; every
-  retried attempt is an extra FAIL trial with ``retried=True`` (so
-  :func:`evaluations_frame` has each evaluation exactly once, and the errors are kept);
-* study system attrs ``tuner:checkpoint`` (metadata) and ``tuner:ckpt:<slot>:<i>``
-  (chunks of the zlib-compressed, base64-encoded pickle of the pymoo algorithm after
-  each generation; two slots alternate so that a kill while writing leaves the previous
-  checkpoint intact; the SHA-256 in the metadata is verified on load). The algorithm is
-  pickled without its problem, callback and display, which are re-attached on resume.
+  failed by its own error on every retry is one trial in state FAIL with
+  ``final=True``, its ``error`` and the worst-value ``F``/``G`` it was given; every
+  retried attempt is an extra FAIL trial with ``retried=True``;
+* study system attr ``tuner:checkpoint``: the checkpoint after each generation, plain
+  JSON (:data:`CHECKPOINT_SCHEMA`): generations and evaluations done, the termination
+  schedule, and digests of the algorithm's random generator and population.
 
-Resume: the algorithm is restored from the last checkpoint (its random generator
-included) and every finished evaluation is loaded into the cache of
-:class:`tuners.backends.Evaluations`, keyed by problem fingerprint + the exact x. The
-restored algorithm proposes the same points as the uninterrupted run did, finished ones
-are answered from the cache (their floats round-trip exactly through JSON), and the
-resumed run ends with exactly the uninterrupted run's result.
+Nothing in a study is code: resume rebuilds the algorithm from the stored settings and
+replays the stored generations with every evaluation answered from the cache
+(:func:`tuners.checkpoint.replay`) — the algorithms are deterministic given the seed
+and the evaluation results, whose floats round-trip exactly through JSON — and checks
+the replayed state against the checkpoint's digests. The resumed run ends with exactly
+the uninterrupted run's result. A writer holds the study's lease (:mod:`tuners.lease`).
 """
 
 from __future__ import annotations
 
-import base64
 import datetime
 import hashlib
 import json
-import pickle
+import time
 import warnings
-import zlib
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import optuna
 import pandas as pd
 from optuna.distributions import FloatDistribution
+from optuna.study._constrained_optimization import _CONSTRAINTS_KEY
 from optuna.trial import TrialState
 
+from tuners.lease import StudyLease, StudyLockedError, lease_holder
 from tuners.problem import TaskProblem
 
 CONFIG_ATTR = "tuner_config"
 TRIAL_ATTR = "tuner"  # one packed user attr per trial (each attr is a DB row: ~2 ms)
 CHECKPOINT_META = "tuner:checkpoint"
+CHECKPOINT_SCHEMA = 2
+LEGACY_CHUNK_PREFIX = "tuner:ckpt:"  # pickled algorithm chunks: refused, never loaded
 CODE_HISTORY_ATTR = "tuner_code_history"  # code fingerprints of a run resumed across versions
-CHUNK_CHARS = 60_000  # below MySQL's TEXT limit
-#: algorithm attributes that are not pickled into a checkpoint
-DETACHED = ("problem", "callback", "display", "history")
 #: packages whose code and data decide what an evaluation returns
 CODE_PACKAGES = ("train_envs", "tuners")
 _CODE_FP: str | None = None
@@ -75,7 +73,6 @@ def code_fingerprint() -> str:
     global _CODE_FP
     if _CODE_FP is None:
         import importlib.util
-        from pathlib import Path
 
         h = hashlib.sha256()
         for pkg in CODE_PACKAGES:
@@ -94,13 +91,20 @@ def code_fingerprint() -> str:
         _CODE_FP = h.hexdigest()[:16]
     return _CODE_FP
 
+
 __all__ = [
+    "CHECKPOINT_SCHEMA",
     "StudyExistsError",
+    "StudyLockedError",
     "StudyStore",
+    "check_storage",
     "checkpoint_info",
+    "delete_study",
     "evaluations_frame",
+    "list_studies",
     "load_study",
     "open_storage",
+    "stored_run_config",
 ]
 
 
@@ -108,33 +112,146 @@ class StudyExistsError(ValueError):
     """The study already holds a run and ``resume`` was not requested."""
 
 
-def open_storage(storage: str | optuna.storages.BaseStorage | None) -> optuna.storages.BaseStorage:
-    """An Optuna storage: ``None`` = in memory, a URL = RDB (SQLite waits for locks)."""
+def _sqlite_path(url: str) -> Path | None:
+    """The database file of an ``sqlite:///`` URL (None: in memory or not SQLite)."""
+    if not url.startswith("sqlite:"):
+        return None
+    rest = url.split(":///", 1)[1] if ":///" in url else ""
+    rest = rest.split("?", 1)[0]
+    return None if rest in ("", ":memory:") else Path(rest)
+
+
+def open_storage(
+    storage: str | optuna.storages.BaseStorage | None, *, must_exist: bool = False
+) -> optuna.storages.BaseStorage:
+    """An Optuna storage: ``None`` = in memory, a URL = RDB (SQLite waits for locks).
+
+    ``must_exist``: an SQLite URL whose file is missing is a ``ValueError`` (readers such
+    as ``tune show`` never create a database). A URL that cannot be opened (unknown
+    scheme, not a database, a missing folder) is a ``ValueError`` naming it.
+    """
     if storage is None:
         return optuna.storages.InMemoryStorage()
     if isinstance(storage, optuna.storages.BaseStorage):
         return storage
+    url = str(storage)
+    path = _sqlite_path(url)
+    if path is not None:
+        if must_exist and not path.is_file():
+            raise ValueError(f"storage {url}: no database file {path}")
+        if not path.parent.is_dir():
+            raise ValueError(f"storage {url}: folder {path.parent} does not exist")
     kwargs: dict[str, Any] = {}
-    if str(storage).startswith("sqlite"):
+    if url.startswith("sqlite"):
         kwargs["engine_kwargs"] = {"connect_args": {"timeout": 60}}
-    return optuna.storages.RDBStorage(str(storage), **kwargs)
+    import sqlalchemy.exc
+
+    for attempt in range(5):
+        try:
+            return optuna.storages.RDBStorage(url, **kwargs)
+        except (sqlalchemy.exc.OperationalError, sqlalchemy.exc.IntegrityError) as exc:
+            # two processes creating the tables of a new database at once: the loser
+            # sees "table ... already exists" or a duplicate schema version; opening
+            # again finds the tables
+            race = isinstance(exc, sqlalchemy.exc.IntegrityError) or "already exists" in str(exc)
+            if race and attempt < 4:
+                time.sleep(0.2)
+                continue
+            error: Exception = exc
+        except (sqlalchemy.exc.SQLAlchemyError, ImportError, ValueError, RuntimeError) as exc:
+            error = exc
+        msg = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"storage {url!r} cannot be opened: {msg}") from error
+    raise AssertionError("unreachable")
+
+
+def check_storage(storage: str) -> None:
+    """``ValueError`` if ``storage`` cannot be opened; a new SQLite file is not created
+    here (only its folder is checked)."""
+    path = _sqlite_path(storage)
+    if path is not None and not path.exists():
+        if not path.parent.is_dir():
+            raise ValueError(f"storage {storage}: folder {path.parent} does not exist")
+        return
+    open_storage(storage)
+
+
+def _study_names(st: optuna.storages.BaseStorage) -> list[str]:
+    return [s.study_name for s in st.get_all_studies()]
 
 
 def load_study(study_name: str, storage: str | optuna.storages.BaseStorage) -> optuna.Study:
     """Open an existing study (``KeyError`` naming the available ones if absent)."""
-    st = open_storage(storage)
-    names = [s.study_name for s in optuna.get_all_study_summaries(st)]
+    st = open_storage(storage, must_exist=True)
+    names = _study_names(st)
     if study_name not in names:
         raise KeyError(f"no study {study_name!r} in {storage}; studies: {names}")
     return optuna.load_study(study_name=study_name, storage=st)
+
+
+def stored_run_config(
+    study_name: str, storage: str | optuna.storages.BaseStorage | None
+) -> tuple[bool, dict[str, Any] | None]:
+    """(study exists and holds evaluations or a checkpoint, its ``tuner_config``).
+
+    Creates no database: a missing SQLite file holds no study.
+    """
+    path = _sqlite_path(storage) if isinstance(storage, str) else None
+    if path is not None and not path.is_file():
+        return False, None
+    st = open_storage(storage)
+    try:
+        sid = st.get_study_id_from_name(study_name)
+    except KeyError:
+        return False, None
+    cfg = st.get_study_user_attrs(sid).get(CONFIG_ATTR)
+    has_run = bool(st.get_all_trials(sid, deepcopy=False)) or bool(
+        st.get_study_system_attrs(sid).get(CHECKPOINT_META)
+    )
+    return has_run, cfg
 
 
 def checkpoint_info(
     study_name: str, storage: str | optuna.storages.BaseStorage
 ) -> dict[str, Any] | None:
     """Metadata of a study's last checkpoint (generation, evaluations, time) or None."""
-    st = open_storage(storage)
+    st = open_storage(storage, must_exist=True)
     return st.get_study_system_attrs(st.get_study_id_from_name(study_name)).get(CHECKPOINT_META)
+
+
+def list_studies(storage: str | optuna.storages.BaseStorage) -> pd.DataFrame:
+    """One row per study: name, env, algo, generations done / iters, evaluations, writer."""
+    st = open_storage(storage, must_exist=True)
+    rows = []
+    for s in st.get_all_studies():
+        sid = s._study_id
+        cfg = st.get_study_user_attrs(sid).get(CONFIG_ATTR) or {}
+        ckpt = st.get_study_system_attrs(sid).get(CHECKPOINT_META) or {}
+        trials = st.get_all_trials(sid, deepcopy=False, states=(TrialState.COMPLETE,))
+        lease = lease_holder(st, s.study_name)
+        rows.append(
+            {
+                "study": s.study_name,
+                "env": cfg.get("env_id"),
+                "algo": cfg.get("algo"),
+                "generations": ckpt.get("n_gen", 0),
+                "iters": cfg.get("iters"),
+                "evaluations": len(trials),
+                "writer": lease["holder"] if lease and lease["live"] else "",
+            }
+        )
+    return pd.DataFrame(
+        rows, columns=["study", "env", "algo", "generations", "iters", "evaluations", "writer"]
+    )
+
+
+def delete_study(study_name: str, storage: str | optuna.storages.BaseStorage) -> None:
+    """Delete a study; refused (``StudyLockedError``) while a live run writes it."""
+    st = open_storage(storage, must_exist=True)
+    if study_name not in _study_names(st):
+        raise KeyError(f"no study {study_name!r} in {storage}; studies: {_study_names(st)}")
+    with StudyLease(st, study_name):
+        optuna.delete_study(study_name=study_name, storage=st)
 
 
 def _jsonable(obj: Any) -> Any:
@@ -144,13 +261,17 @@ def _jsonable(obj: Any) -> Any:
 class StudyStore:
     """Writes evaluations and checkpoints of one run to an Optuna study.
 
+    Takes the study's write lease first (:class:`tuners.lease.StudyLease`; released by
+    :meth:`close`), then creates or opens the study.
+
     Args:
         storage: Optuna storage URL or object; ``None`` = in memory.
         study_name: the study (one per run).
         problem: the task problem (names, distributions, fingerprint).
         run_config: JSON-able run settings stored as the study's ``tuner_config``.
-        resume: continue an existing study; without it an existing non-empty study is
-            an error (:class:`StudyExistsError`).
+        resume: continue an existing study; without it a study that holds evaluations
+            or a checkpoint is an error (:class:`StudyExistsError`); one that holds
+            neither (a run that stopped before its first evaluation) is started afresh.
         check_keys: ``run_config`` keys that must match the stored ones on resume.
     """
 
@@ -168,15 +289,31 @@ class StudyStore:
         self.study_name = study_name
         self.problem = problem
         self.run_config = _jsonable(dict(run_config))
+        self.lease: StudyLease | None = StudyLease(self.storage, study_name).acquire()
+        try:
+            self._open(problem, resume, check_keys)
+        except BaseException:
+            self.close()
+            raise
+        self.distributions = {
+            name: FloatDistribution(lo, hi, log=log)
+            for name, (lo, hi, log) in problem.param_distributions().items()
+        }
+
+    def _open(self, problem: TaskProblem, resume: bool, check_keys: tuple[str, ...]) -> None:
+        study_name = self.study_name
+        has_run, stored = stored_run_config(study_name, self.storage)
         try:
             self.study_id = self.storage.get_study_id_from_name(study_name)
             exists = True
         except KeyError:
             exists = False
+        if exists and not has_run:  # nothing to keep (a start that stopped early): afresh
+            self.storage.delete_study(self.study_id)
+            exists = False
         if exists:
             study = optuna.load_study(study_name=study_name, storage=self.storage)
-            stored = study.user_attrs.get(CONFIG_ATTR)
-            if not resume and (stored is not None or len(study.trials) > 0):
+            if not resume and has_run:
                 raise StudyExistsError(
                     f"study {study_name!r} already holds a run; pass resume=True (--resume) to "
                     "continue it or choose another study name"
@@ -204,6 +341,8 @@ class StudyStore:
                 if now is not None and stored.get("code") != now:  # allowed: record it
                     seen = list(study.user_attrs.get(CODE_HISTORY_ATTR) or [stored.get("code")])
                     study.set_user_attr(CODE_HISTORY_ATTR, [*seen, now])
+                if stored != self.run_config:  # e.g. more iterations: the study says so
+                    study.set_user_attr(CONFIG_ATTR, self.run_config)
             else:
                 study.set_user_attr(CONFIG_ATTR, self.run_config)
             self.resumed = stored is not None
@@ -221,10 +360,6 @@ class StudyStore:
             study.set_user_attr(CONFIG_ATTR, self.run_config)
             self.resumed = False
         self.study = study
-        self.distributions = {
-            name: FloatDistribution(lo, hi, log=log)
-            for name, (lo, hi, log) in problem.param_distributions().items()
-        }
 
     # ------------------------------------------------------------- evaluations
     def _attrs(
@@ -270,13 +405,18 @@ class StudyStore:
                 user_attrs=ua,
             )
         else:
-            cons = dict(zip(problem.constr_names, outcome.get("G", []), strict=True))
+            G = [float(g) for g in outcome.get("G", [])]
+            if len(G) != len(problem.constr_names):
+                raise ValueError(
+                    f"outcome has {len(G)} constraint values, expected "
+                    f"{len(problem.constr_names)} ({problem.constr_names})"
+                )
             trial = optuna.trial.create_trial(
                 values=list(outcome["F"]),
                 params=params,
                 distributions=self.distributions,
                 user_attrs=ua,
-                constraints=cons or None,
+                system_attrs={_CONSTRAINTS_KEY: G} if G else None,
             )
             if trial.datetime_complete is not None:
                 trial.datetime_start = trial.datetime_complete - datetime.timedelta(
@@ -327,51 +467,90 @@ class StudyStore:
         return cache
 
     # -------------------------------------------------------------- checkpoint
-    def save_checkpoint(self, algorithm: Any, **info: Any) -> int:
-        """Pickle ``algorithm`` (without problem/callback/display) into the study.
+    def save_checkpoint(self, algorithm: Any, schedule: list[list[int]], **info: Any) -> dict:
+        """Write the checkpoint of ``algorithm`` after a generation (plain JSON data).
 
-        Returns the number of characters written.
+        ``schedule`` = ``[[first generation, iters], ...]``: the termination each stored
+        generation ran under (an extended run has several). Returns the metadata.
         """
-        saved = {k: algorithm.__dict__.get(k) for k in DETACHED if k in algorithm.__dict__}
-        try:
-            for k in saved:
-                algorithm.__dict__[k] = [] if k == "history" else None
-            raw = pickle.dumps(algorithm, protocol=pickle.HIGHEST_PROTOCOL)
-        finally:
-            algorithm.__dict__.update(saved)
-        blob = base64.b64encode(zlib.compress(raw, 6)).decode("ascii")
-        attrs = self.storage.get_study_system_attrs(self.study_id)
-        prev = attrs.get(CHECKPOINT_META) or {}
-        slot = "b" if prev.get("slot") == "a" else "a"
-        chunks = [blob[i : i + CHUNK_CHARS] for i in range(0, len(blob), CHUNK_CHARS)]
-        for i, chunk in enumerate(chunks):
-            self.storage.set_study_system_attr(self.study_id, f"tuner:ckpt:{slot}:{i}", chunk)
         meta = {
-            "slot": slot,
-            "n_chunks": len(chunks),
-            "sha256": hashlib.sha256(blob.encode()).hexdigest(),
+            "schema": CHECKPOINT_SCHEMA,
             "n_gen": int(algorithm.n_iter) - 1 if algorithm.n_iter else 0,
             "n_eval": int(algorithm.evaluator.n_eval),
+            "schedule": [[int(g), int(n)] for g, n in schedule],
+            "state": algorithm_state(algorithm),
             "saved_at": datetime.datetime.now().isoformat(timespec="seconds"),
             **_jsonable(info),
         }
         self.storage.set_study_system_attr(self.study_id, CHECKPOINT_META, meta)
-        return len(blob)
+        return meta
 
     def checkpoint_info(self) -> dict[str, Any] | None:
         return self.storage.get_study_system_attrs(self.study_id).get(CHECKPOINT_META)
 
-    def load_checkpoint(self) -> Any | None:
-        """The last checkpointed algorithm (detached parts set to None), or None."""
-        attrs = self.storage.get_study_system_attrs(self.study_id)
-        meta = attrs.get(CHECKPOINT_META)
-        if not meta:
-            return None
-        slot = meta["slot"]
-        blob = "".join(attrs[f"tuner:ckpt:{slot}:{i}"] for i in range(meta["n_chunks"]))
-        if hashlib.sha256(blob.encode()).hexdigest() != meta["sha256"]:
-            raise ValueError(f"checkpoint of study {self.study_name!r} is corrupt (hash mismatch)")
-        return pickle.loads(zlib.decompress(base64.b64decode(blob)))
+    def load_checkpoint(self) -> dict[str, Any] | None:
+        """The validated checkpoint metadata, or None if the study has none."""
+        return read_checkpoint(self.storage, self.study_id, self.study_name)
+
+    def close(self) -> None:
+        """Release the write lease (idempotent)."""
+        if self.lease is not None:
+            self.lease.release()
+
+
+def algorithm_state(algorithm: Any) -> dict[str, str]:
+    """SHA-256 digests of the state a replay must reproduce: the random generator and
+    the population's X and F (16 hex digits each)."""
+    rng = getattr(algorithm, "random_state", None)
+    rng_state = json.dumps(rng.bit_generator.state, sort_keys=True) if rng is not None else ""
+    out = {"rng": hashlib.sha256(rng_state.encode()).hexdigest()[:16]}
+    pop = getattr(algorithm, "pop", None)
+    for name in ("X", "F"):
+        arr = None if pop is None or len(pop) == 0 else pop.get(name)
+        raw = b"" if arr is None else np.ascontiguousarray(np.asarray(arr, float)).tobytes()
+        out[f"pop_{name}"] = hashlib.sha256(raw).hexdigest()[:16]
+    return out
+
+
+def read_checkpoint(
+    storage: optuna.storages.BaseStorage, study_id: int, study_name: str
+) -> dict[str, Any] | None:
+    """Checkpoint metadata of a study, validated; ``ValueError`` naming what is wrong.
+
+    A checkpoint in any other form — such as pickled algorithm chunks under
+    ``tuner:ckpt:*`` — is refused and never loaded: a pickle runs code.
+    """
+    attrs = storage.get_study_system_attrs(study_id)
+    meta = attrs.get(CHECKPOINT_META)
+    legacy = sorted(k for k in attrs if k.startswith(LEGACY_CHUNK_PREFIX))
+    where = f"checkpoint of study {study_name!r}"
+    if legacy or (meta is not None and meta.get("schema") != CHECKPOINT_SCHEMA):
+        found = (
+            f"pickled algorithm chunks {legacy[0]}" if legacy else f"schema {meta.get('schema')!r}"
+        )
+        raise ValueError(
+            f"{where} is not in checkpoint schema {CHECKPOINT_SCHEMA} (found {found}); it is "
+            "not loaded (a pickle can run code): start a new study, or delete this one "
+            "(`train-envs tune delete`)"
+        )
+    if meta is None:
+        return None
+    ok = (
+        isinstance(meta.get("n_gen"), int)
+        and meta["n_gen"] >= 0
+        and isinstance(meta.get("n_eval"), int)
+        and isinstance(meta.get("state"), dict)
+        and all(isinstance(v, str) for v in meta["state"].values())
+        and isinstance(meta.get("schedule"), list)
+        and len(meta["schedule"]) >= 1
+        and all(
+            isinstance(s, list) and len(s) == 2 and all(isinstance(v, int) and v >= 1 for v in s)
+            for s in meta["schedule"]
+        )
+    )
+    if not ok:
+        raise ValueError(f"{where} is malformed (n_gen, n_eval, schedule or state): {meta}")
+    return meta
 
 
 # --------------------------------------------------------------------- results
