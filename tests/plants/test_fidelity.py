@@ -140,3 +140,22 @@ def test_closed_loop_start_in_wind_does_not_roll_back(name):
     assert min(s) >= sc.s0_m
     assert s[-1] > sc.s0_m
 
+
+def test_paper001_resistance_readings():
+    """Paper 001's unitless ``5.4 + 0.0098 v + 0.00163 v²``: N/kN with v in m/s (default)
+    or N/t with v in km/h, 4.2× lower at 20 m/s and 8.8× lower at 5 m/s; the scenario
+    option builds the other reading, and its PID run still stops in the ±0.5 m window."""
+    from train_envs.scenarios import paper001_stopping, paper001_train
+    from train_envs.simulation import simulate
+
+    kn, nt = paper001_train("N/kN"), paper001_train("N/t")
+    assert kn is get_train("paper001_hst")
+    assert kn.resistance_N(20.0) == pytest.approx(490 * 9.81 * (5.4 + 0.196 + 0.652))
+    assert nt.resistance_N(20.0) == pytest.approx(490 * (5.4 + 0.0098 * 72 + 0.00163 * 72**2))
+    assert kn.resistance_N(20.0) / nt.resistance_N(20.0) == pytest.approx(4.21, abs=0.01)
+    assert kn.resistance_N(5.0) / nt.resistance_N(5.0) == pytest.approx(8.82, abs=0.01)
+    sc = paper001_stopping(resistance_reading="N/t")
+    assert sc.train is not kn and sc.train.davis_a_N == pytest.approx(5.4 * 490)
+    assert abs(simulate(sc, "pid", seed=0).metrics["stop_error_m"]) <= 0.5
+    with pytest.raises(ValueError, match="resistance_reading"):
+        paper001_train("kN")
