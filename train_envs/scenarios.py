@@ -244,15 +244,49 @@ def reference_train(train: TrainParams, traction_fraction: float = 0.85) -> Trai
 
 
 # ======================================================================= paper scenarios
-def paper001_stopping() -> Scenario:
+#: the two readings of paper 001's basic resistance ``5.4 + 0.0098 v + 0.00163 v²``
+PAPER001_READINGS = ("N/kN", "N/t")
+
+
+def paper001_train(resistance_reading: str = "N/kN") -> TrainParams:
+    """Paper 001's 490 t train under one reading of its basic resistance.
+
+    Paper 001 gives ``w = 5.4 + 0.0098 v + 0.00163 v²`` without a unit.  ``"N/kN"``
+    (the library's default, ``train_envs.trains`` ``paper001_hst``): per unit weight
+    with v in m/s, ``R = M g/1000 · w(v)``: 30.0 kN at 20 m/s.  ``"N/t"``: per tonne
+    with v in km/h, ``R = M/1000 · w(3.6 v)``, the form of the usual Chinese high-speed
+    formulas, whose coefficient ratios these match: 7.13 kN at 20 m/s (4.2× lower;
+    8.8× lower at 5 m/s).
+    """
+    check_choice("resistance_reading", resistance_reading, PAPER001_READINGS, sort=False)
+    train = get_train("paper001_hst")
+    if resistance_reading == "N/kN":
+        return train
+    t = train.mass_kg / 1000.0  # tonnes
+    return replace(
+        train,
+        name="paper001_hst_n_per_t",
+        davis_a_N=5.4 * t,
+        davis_b_Ns_per_m=0.0098 * 3.6 * t,
+        davis_c_Ns2_per_m2=0.00163 * 3.6**2 * t,
+        source=train.source.replace(
+            "read as N/kN (per unit weight) with v in m/s",
+            "read as N/t (per tonne) with v in km/h",
+        ),
+    )
+
+
+def paper001_stopping(resistance_reading: str = "N/kN") -> Scenario:
     """Paper 001 (Liu et al. 2022) Table 1: accurate stopping of a 490 t high-speed train.
 
     Start 20 m/s at 0 m, stop point 400 m, speed limit 20 m/s, reference braking at
     −0.5 m/s² from 0 m (20²/(2·0.5) = 400 m), gradient 12 ‰ on [0, 150] m, 28 ‰ on
     (150, 300) m, −6 ‰ on [300, 400] m, T_s = 0.2 s, lag τ = 0.4 s, dead time T_d = 1 s,
-    max braking 1.07 m/s². Stopping window ±0.5 m.
+    max braking 1.07 m/s². Stopping window ±0.5 m.  The paper's basic resistance has
+    no unit: ``resistance_reading`` ``"N/kN"`` (v in m/s, the default) or ``"N/t"`` (v in
+    km/h, 4.2× lower at 20 m/s), see :func:`paper001_train`.
     """
-    train = get_train("paper001_hst")
+    train = paper001_train(resistance_reading)
     track = get_track("paper001")
     prof = constant_decel_profile(v0=20.0, s0=0.0, s_stop=400.0, decel=0.5)
     return Scenario(

@@ -388,9 +388,10 @@ def test_nan_measurement_is_reported_by_name():
 
 
 def test_pid_refactor_kept_behaviour(runs):
-    # regression value of pid.py on paper001 (pinned when pid.py moved to _common)
+    # regression value of pid.py on paper001 (pinned when pid.py moved to _common;
+    # 0.043275 on the plant that is exact at gradient steps, 0.043736 before)
     m = runs["paper001_stopping", "pid"].metrics
-    assert m["stop_error_m"] == pytest.approx(0.043736, abs=1e-5)
+    assert m["stop_error_m"] == pytest.approx(0.043275, abs=1e-5)
     assert isinstance(make_controller("pid"), PIDController)
 
 

@@ -317,12 +317,13 @@ def test_physics_laws():
         assert davis_N(a, b, c, v) == r
         assert davis_sq_N(a, b, c, v) == pytest.approx(r, rel=1e-15)
         assert davis_horner_N(a, b, c, v) == pytest.approx(r, rel=1e-15)
-        assert davis_signed_N(a, b, c, -v) == (-r if v else 0.0)
-        assert davis_signed_N(a, b, c, v) == (r if v else 0.0)
+        assert davis_signed_N(a, b, c, -v) == (-r if v else r)  # 0: leaving rest, forward
+        assert davis_signed_N(a, b, c, v) == r
     v = np.linspace(0.0, 40.0, 9)
     assert davis_N(a, b, c, v).tolist() == [davis_N(a, b, c, x) for x in v.tolist()]
-    assert davis_slope(b, c, 10.0) == pytest.approx((davis_N(a, b, c, 10.0 + 1e-4)
-                                                     - davis_N(a, b, c, 10.0 - 1e-4)) / 2e-4)
+    assert davis_slope(b, c, 10.0) == pytest.approx(
+        (davis_N(a, b, c, 10.0 + 1e-4) - davis_N(a, b, c, 10.0 - 1e-4)) / 2e-4
+    )
     share = np.array([0.5, 0.25, 0.25])
     ca, cb, cc = car_davis(a, b, c, share, True)
     assert ca.tolist() == [1500.0, 750.0, 750.0] and cb.sum() == b and cc.tolist() == [c, 0, 0]

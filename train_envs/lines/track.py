@@ -310,6 +310,25 @@ class Track:
             )
         )
 
+    def resistance_breakpoints_m(self) -> np.ndarray:
+        """Sorted positions [m] where the equivalent gradient changes its formula: the
+        gradient and curve section starts, and inside each clothoid the points where the
+        radius crosses the curve-resistance cut-off (:data:`CURVE_RESISTANCE_MAX_RADIUS_M`)
+        or the curvature changes sign.  Between two of them the equivalent gradient is
+        constant or linear in ``s`` (a plant integrates across none of them)."""
+        pts = [self.gradient_positions_m, self.curve_positions_m]
+        cut = 1.0 / CURVE_RESISTANCE_MAX_RADIUS_M
+        for p0, p1, k0, k1 in zip(
+            self._cv_pos, self._cv_end, self._cv_k0, self._cv_k1, strict=True
+        ):
+            if k0 == k1:
+                continue
+            for target in (-cut, 0.0, cut):
+                frac = (target - k0) / (k1 - k0)
+                if 0.0 < frac < 1.0:
+                    pts.append(np.array([p0 + frac * (p1 - p0)]))
+        return np.unique(np.concatenate(pts))
+
     # ------------------------------------------------------------------ lookups
     speed_limit_at = _step_lookup(
         "_sl_pos",

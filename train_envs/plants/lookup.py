@@ -14,10 +14,10 @@ class PiecewiseLinear:
 
     Built by sampling a function that is constant or linear between ``breakpoints``
     (a track's gradient is piecewise constant, a clothoid's curve resistance 600|κ|
-    piecewise linear), so the table reproduces it exactly at a fraction of the cost.
-    (Exception: where a clothoid crosses the 10 km radius cut-off of the curve
-    resistance, the table interpolates across the cut-off: error below 0.06 ‰ on the
-    shipped lines.)
+    piecewise linear, cut off above a 10 km radius: see
+    :meth:`train_envs.lines.track.Track.resistance_breakpoints_m`), at two points inside
+    each segment, so the table reproduces it exactly, also where it jumps, at a fraction
+    of the cost.  A plant splits its integration steps at the segment starts ``x``.
     """
 
     def __init__(self, x: np.ndarray, y0: np.ndarray, slope: np.ndarray) -> None:
@@ -35,12 +35,13 @@ class PiecewiseLinear:
     ) -> PiecewiseLinear:
         x = np.unique(np.asarray(breakpoints, dtype=float))
         x = x[x < end]
-        right = np.append(x[1:], end)
-        y0 = np.asarray(f(x), dtype=float)
-        eps = 1e-7 * np.maximum(1.0, np.abs(right))
-        y1 = np.asarray(f(right - eps), dtype=float)
-        width = np.maximum(right - eps - x, 1e-12)
-        slope = (y1 - y0) / width
+        width = np.append(x[1:], end) - x
+        # two samples inside each segment: the value at a jump (the segment start) is the
+        # segment's own, whichever side a function evaluates exactly at the jump
+        xa, xb = x + 0.25 * width, x + 0.75 * width
+        fa = np.asarray(f(xa), dtype=float)
+        slope = (np.asarray(f(xb), dtype=float) - fa) / (xb - xa)
+        y0 = fa - slope * (xa - x)
         return cls(x, y0, slope)
 
     def __call__(self, s):
@@ -60,7 +61,9 @@ def gradient_table(track) -> PiecewiseLinear:
     hit = _TABLES.get(key)
     if hit is None or hit[0] is not track:
         table = PiecewiseLinear.from_function(
-            track.equivalent_gradient_permil_at, track.breakpoints_m(), track.length_m + 1e6
+            track.equivalent_gradient_permil_at,
+            track.resistance_breakpoints_m(),
+            track.length_m + 1e6,
         )
         _TABLES[key] = hit = (track, table)
     return hit[1]

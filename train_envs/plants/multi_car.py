@@ -23,9 +23,18 @@ of the control period: :meth:`TrainPlant.step` advances by any multiple of it wi
 command held.
 
 Braking to a standstill: when the lead car's speed crosses zero the train is held
-(brakes hold a stopped train); the crossing point is interpolated inside the sub-step
-so that the stopping position is accurate to well under a millimetre. It moves again
-when the net tractive force exceeds the gradient force plus the Davis constant term.
+(brakes hold a stopped train); the crossing point is found inside the sub-step
+(:func:`train_envs.plants.crossing.held_state`) so that the stopping position is
+accurate to well under a millimetre. It moves again
+when the net tractive force exceeds the gradient force, the disturbances and the Davis
+constant term; a held train never leaves rest backwards.
+
+Breakpoints: a sub-step whose predictor puts a car on another segment of the gradient
+table (a gradient step, a curve start, a curve-resistance cut-off) takes the jump of
+the gradient force at the instant the car reaches the breakpoint into account
+(:mod:`train_envs.plants.crossing`), so the integrator stays second order across the
+jumps of the nonlinear term; the Davis law of a train leaving rest acts forward from
+its first sub-step.
 
 The single-point train steps through one registered scalar loop
 (:mod:`train_envs.plants.single_car`, compiled where numba is available); several
@@ -37,12 +46,14 @@ as the array formulation.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Sequence
 
 import numpy as np
 
 from train_envs._jit import implementation
 from train_envs.plants.actuator import ActuatorParams, linear_model
+from train_envs.plants.crossing import held_state, jump_corrections
 from train_envs.plants.energy import np_sum as _np_sum
 from train_envs.plants.energy import power_sums
 from train_envs.plants.integrator import ETD2Integrator
@@ -384,7 +395,6 @@ class TrainPlant:
             self._w_now = w
             self._substep(w)
 
-
     def _run_single(self, w_cmd: float, k: int, z: list[float] | None = None) -> None:
         """Single-car fast path of :meth:`step`: the registered single-car step
         (:mod:`train_envs.plants.single_car`, compiled where available).  The
@@ -421,8 +431,16 @@ class TrainPlant:
         g = self.gradient_permil
         tab = (g.x, g.y0, g.slope) if g is not None else (_NO_DIST,) * 3
         self._head = self._kern(
-            st, self._buffer[:, 0], self._head, k, order, self._kconst, *tab,
-            g is not None, wd, bool(dists),
+            st,
+            self._buffer[:, 0],
+            self._head,
+            k,
+            order,
+            self._kconst,
+            *tab,
+            g is not None,
+            wd,
+            bool(dists),
         )
         z0, z1, z2, t, p_last, stopped, w, wt, wb = st.tolist()
         self.z = np.array([z0, z1, z2] if order else [z0, z1])
@@ -455,20 +473,39 @@ class TrainPlant:
         zl = z.tolist()
         grad = self.gradient_permil
         tab = self._grad_table() if grad is not None else None
-        if self._lead_fast or (grad is not None and tab is None):
-            z_new = self._integ.step(z, w, self.t, self._nonlinear, gw)
+        ig = self._integ
+        t = self.t
+        if grad is not None and tab is None:  # a callable: no breakpoints known
+            z_new = ig.step(z, w, t, self._nonlinear, gw)
+        elif self._lead_fast:
+            # ETD2Integrator.step, with the predictor checked for a breakpoint crossing
+            n0a = self._nonlinear(z, t)
+            z_new = ig.Phi.dot(z) + (ig.Gamma.dot(w) if gw is None else gw) + ig.P1.dot(n0a)
+            dn = self._nonlinear(z_new, t + h) - n0a
+            if tab is not None:
+                seg0 = bisect_right(tab[0], zl[0]) - 1
+                seg1 = bisect_right(tab[0], float(z_new[0])) - 1
+                if seg1 != seg0:
+                    cj, dl = jump_corrections(self, z, w, z_new, [seg0], [seg1], n0a)
+                    z_new = z_new + ig.P1.dot(cj)
+                    dn = dn + dl
+            z_new = z_new + ig.P2.dot(dn)
         else:
             # ETD2Integrator.step with the nonlinear term evaluated on floats (the same
             # matrix products and additions, in place where the operands are fresh)
-            ig = self._integ
-            t = self.t
             buf = self._nl_arr
-            n0 = self._nl.floats(zl, t, n, tab)
+            segs0: list[int] = []
+            n0 = self._nl.floats(zl, t, n, tab, None, segs0)
             buf[:] = n0
             z_new = ig.Phi.dot(z)
             z_new += ig.Gamma.dot(w) if gw is None else gw
             z_new += ig.P1.dot(buf)  # z_new holds a here
-            buf[:] = self._nl.floats(z_new.tolist(), t + h, n, tab, n0)  # n1 − n0
+            segs1: list[int] = []
+            buf[:] = self._nl.floats(z_new.tolist(), t + h, n, tab, n0, segs1)  # n1 − n0
+            if segs1 != segs0:
+                cj, dl = jump_corrections(self, z, w, z_new, segs0, segs1, np.array(n0))
+                z_new += ig.P1.dot(cj)
+                buf += dl
             z_new += ig.P2.dot(buf)
         znl = z_new.tolist()
         v_old = zl[n]
@@ -488,15 +525,9 @@ class TrainPlant:
         self.work_traction_J += 0.25 * h * s_up
         self.work_brake_J += 0.25 * h * s_down
         self._p_last = p1
-        if v_old > 0.0 and 0.0 < v_new < self.HOLD_SPEED_MPS and v_new < v_old and self._braking():
-            # crawling to a halt under braking: the holding brake takes over
-            z_new[n : 2 * n] = 0.0
-            self.stopped = True
-        elif v_old > 0.0 and v_new <= 0.0:
-            # interpolate the stop inside the sub-step (constant deceleration)
-            frac = v_old / (v_old - v_new)
-            z_new[:n] = z[:n] + 0.5 * z[n : 2 * n] * frac * h
-            z_new[n : 2 * n] = 0.0
+        held = held_state(self, z, z_new, w, v_old, v_new)
+        if held is not None:
+            z_new = held
             self.stopped = True
         self.z = z_new
         self.t += h
@@ -511,11 +542,15 @@ class TrainPlant:
         return float(np.sum(self._forces(self.z))) <= float(np.sum(self.ca))
 
     def _breakaway(self, w: np.ndarray) -> bool:
+        """Whether a held train moves: the force exceeds gradient, disturbances and the
+        Davis constant terms (a held train never leaves rest backwards)."""
         F = float(np.sum(w if self.actuator.order == 0 else self._forces(self.z)))
         grade = 0.0
         if self.gradient_permil is not None:
             x = self.z[: self.n] - self._offsets
             grade = float(np.sum(self.m * (G / 1000.0) * self.gradient_permil(x)))
+        if self.disturbances:
+            grade += self._nl.m_sum * self._nl.disturbance_sum(self.t)
         return F > grade + float(np.sum(self.ca))
 
     # ------------------------------------------------------------- read-outs

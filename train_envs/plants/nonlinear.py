@@ -18,11 +18,12 @@ element-wise arithmetic is IEEE-exact like Python's), so both give the same bits
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from train_envs.plants.physics import davis_N, davis_signed_N, gradient_at
+from train_envs.plants.physics import davis_N, davis_signed_N
 from train_envs.plants.resistance import DavisVariation, Disturbance
 
 Table = tuple[list[float], list[float], list[float]]
@@ -58,7 +59,13 @@ class NonlinearTerm:
             (n + i, *c)
             for i, c in enumerate(
                 zip(
-                    self.ca_l, self.cb_l, self.cc_l, self.off_l, self.mg_l, self.m_l, self.mi_l,
+                    self.ca_l,
+                    self.cb_l,
+                    self.cc_l,
+                    self.off_l,
+                    self.mg_l,
+                    self.m_l,
+                    self.mi_l,
                     strict=True,
                 )
             )
@@ -91,7 +98,7 @@ class NonlinearTerm:
                 cc[0] += d2 * self.m.sum()
             else:
                 cc = cc + d2 * self.m
-        force = np.sign(v) * davis_N(ca, cb, cc, av)
+        force = np.where(v >= 0.0, 1.0, -1.0) * davis_N(ca, cb, cc, av)  # v = 0: leaving rest
         if gradient is not None:
             x = z[:n] - self.offsets
             force = force + self.mg * gradient(x)
@@ -106,11 +113,13 @@ class NonlinearTerm:
         cars: int,
         tab: Table | None,
         minus: list[float] | None = None,
+        segs: list[int] | None = None,
     ) -> list[float]:
         """:meth:`array` on Python floats for the first ``cars`` cars, with the gradient
         as the table lists ``tab`` (or None for a level track).  ``minus`` (n values) is
         subtracted from the results: the ETD2 step's ``N(a) − N(z)`` in one pass
-        (subtracting 0.0 changes nothing)."""
+        (subtracting 0.0 changes nothing).  ``segs``, a list, receives the table segment
+        under each car (the plant's breakpoint check)."""
         if minus is None:
             minus = self.zeros_l
         dv = self.davis_variation
@@ -121,7 +130,11 @@ class NonlinearTerm:
             consts = self.car_consts if cars == self.n else self.car_consts[:cars]
             for (vi, ca, cb, cc, off, mg, m, mi), x, s0 in zip(consts, z, minus, strict=False):
                 f = davis_signed_N(ca, cb, cc, z[vi])
-                f = f + mg * gradient_at(xl, y0l, sl, x - off)
+                xi = x - off
+                j = bisect_right(xl, xi) - 1  # (gradient_at, inlined for the index)
+                if segs is not None:
+                    segs.append(j)
+                f = f + mg * (y0l[j] + sl[j] * (xi - xl[j]))
                 if wd is not None:
                     f = f + m * wd
                 out.append(-f / mi - s0)
@@ -143,10 +156,40 @@ class NonlinearTerm:
                     c2 = cc[i] + d2 * m[i]
                 f = davis_signed_N(ca[i] + d0 * m[i], cb[i] + d1 * m[i], c2, v)
             if tab is not None:
-                f = f + mg[i] * gradient_at(tab[0], tab[1], tab[2], z[i] - off[i])
+                xi = z[i] - off[i]
+                j = bisect_right(tab[0], xi) - 1
+                if segs is not None:
+                    segs.append(j)
+                f = f + mg[i] * (tab[1][j] + tab[2][j] * (xi - tab[0][j]))
             if wd is not None:
                 f = f + m[i] * wd
             out.append(-f / mi[i] - minus[i])
+        return out
+
+    def at_segments(
+        self, z: list[float], t: float, wd: float, tab: Table, segs: list[int]
+    ) -> list[float]:
+        """N of every car with the gradient under car i read on the table segment
+        ``segs[i]`` (a side of a breakpoint, for a split sub-step) and the disturbance
+        sum ``wd`` (the plant interpolates it inside the sub-step)."""
+        n = self.n
+        xl, y0l, sl = tab
+        d0 = d1 = d2 = 0.0
+        if self.davis_variation is not None:
+            d0, d1, d2 = self.davis_variation.deltas(t)
+        out = []
+        for i in range(n):
+            m = self.m_l[i]
+            if self.lead_aero:
+                c2 = self.cc_l[i] + d2 * self.m_sum if i == 0 else self.cc_l[i]
+            else:
+                c2 = self.cc_l[i] + d2 * m
+            f = davis_signed_N(self.ca_l[i] + d0 * m, self.cb_l[i] + d1 * m, c2, z[n + i])
+            j = segs[i]
+            f = f + self.mg_l[i] * (y0l[j] + sl[j] * (z[i] - self.off_l[i] - xl[j]))
+            if self.disturbances:
+                f = f + m * wd
+            out.append(-f / self.mi_l[i])
         return out
 
     def single(

@@ -51,11 +51,12 @@ def davis_horner_N(a, b, c, v):
 
 
 def davis_signed_N(a: float, b: float, c: float, v: float) -> float:
-    """Davis resistance at a signed speed ``v`` (scalar): ``sign(v) R(|v|)``, 0 at rest
-    (``np.sign(v) * davis_N(a, b, c, abs(v))`` for arrays)."""
+    """Davis resistance of a moving car at a signed speed ``v`` (scalar): ``sign(v)
+    R(|v|)``, with ``v = 0`` counted as forward motion (``+a``: the speed of a train
+    leaving rest, the only moving state at exactly zero speed)."""
     av = v if v >= 0.0 else -v
     f = a + b * av + c * av * av
-    return f if v > 0 else (-f if v < 0 else 0.0)
+    return f if v >= 0 else -f
 
 
 def davis_slope(b, c, v0):

@@ -11,7 +11,10 @@ W unknown (its disturbance observer estimates it); RMPC and RSMPC for N = 3, 5, 
 runs inside the ±50 cm window, command switches and RSMPC triggers (means per run),
 beside the paper's numbers: PID 28.98 cm and ideal MPC 5.95 cm (§4 text); for RMPC and
 RSMPC the paper gives only Fig. 11 (no table): every N in 3…15 stops within ±50 cm,
-and RSMPC switches the command far less often than RMPC.
+and RSMPC switches the command far less often than RMPC.  The paper's basic resistance
+has no unit: every row is run under both readings (column ``reading``: ``N/kN`` with v
+in m/s, the library's default, and ``N/t`` with v in km/h, 4.2× lower at 20 m/s; see
+:func:`train_envs.scenarios.paper001_train`).
 Write-up and the measured table: ``docs/papers/paper001.md``.
 """
 
@@ -24,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from train_envs.controllers import make_controller
-from train_envs.scenarios import DisturbanceSpec, get_scenario
+from train_envs.scenarios import PAPER001_READINGS, DisturbanceSpec, paper001_stopping
 from train_envs.simulation import simulate
 
 #: paper 001 §4: stopping errors [cm] given in the text
@@ -39,10 +42,11 @@ W_BOUND_MPS2 = 0.05
 HORIZONS = (3, 5, 10, 15)
 
 
-def _row(label: str, N: int | None, runs: list, paper_key: str) -> dict:
+def _row(reading: str, label: str, N: int | None, runs: list, paper_key: str) -> dict:
     err = np.array([r.metrics["stop_error_m"] for r in runs]) * 100.0
     trig = [float(np.nansum(r.df["triggered"])) for r in runs if "triggered" in r.df]
     return {
+        "reading": reading,
         "controller": label,
         "N": N if N is not None else "",
         "runs": len(runs),
@@ -59,36 +63,45 @@ def _row(label: str, N: int | None, runs: list, paper_key: str) -> dict:
 
 
 def reproduce_paper001(
-    seed: int = 0, n_seeds: int = 20, horizons: tuple[int, ...] = HORIZONS, progress: bool = True
+    seed: int = 0,
+    n_seeds: int = 20,
+    horizons: tuple[int, ...] = HORIZONS,
+    progress: bool = True,
+    readings: tuple[str, ...] = PAPER001_READINGS,
 ) -> pd.DataFrame:
-    """Our stopping errors, switches and triggers beside paper 001's (see the module doc).
+    """Our stopping errors, switches and triggers beside paper 001's (see the module doc),
+    for each resistance reading in ``readings``.
 
     ``seed`` is the first of ``n_seeds`` consecutive disturbance seeds (the same draws
-    for every controller).  Progress goes to stderr (about 1–2 min in all).
+    for every controller).  Progress goes to stderr (about 10 s in all).
     """
     if int(n_seeds) < 1:
         raise ValueError(f"n_seeds must be >= 1, got {n_seeds}")
-    nominal = get_scenario("paper001_stopping")
-    sc = nominal.with_overrides(disturbance=DisturbanceSpec(random_bound_mps2=W_BOUND_MPS2))
     seeds = [int(seed) + k for k in range(int(n_seeds))]
     t0 = time.perf_counter()
+    rows = []
+    for reading in readings:
+        nominal = paper001_stopping(reading)
+        sc = nominal.with_overrides(disturbance=DisturbanceSpec(random_bound_mps2=W_BOUND_MPS2))
 
-    def runs_of(name: str, **kw) -> list:
-        ctrl = make_controller(name, sc, **kw)  # one controller: QPs built once
-        out = [simulate(sc, ctrl, seed=s) for s in seeds]
-        if progress:
-            extra = f" N={kw['N']}" if "N" in kw else ""
-            print(
-                f"  paper001: {name}{extra} done ({time.perf_counter() - t0:.0f} s)",
-                file=sys.stderr,
-            )
-        return out
+        def runs_of(name: str, sc=sc, reading=reading, **kw) -> list:
+            ctrl = make_controller(name, sc, **kw)  # one controller: QPs built once
+            out = [simulate(sc, ctrl, seed=s) for s in seeds]
+            if progress:
+                extra = f" N={kw['N']}" if "N" in kw else ""
+                print(
+                    f"  paper001 ({reading}): {name}{extra} done "
+                    f"({time.perf_counter() - t0:.0f} s)",
+                    file=sys.stderr,
+                )
+            return out
 
-    rows = [_row("PID", None, runs_of("pid"), "PID")]
-    rows.append(_row("ideal MPC (W known)", 10, [simulate(nominal, "mpc", seed=seed)], "ideal MPC"))
-    rows.append(_row("MPC (W unknown, observer)", 10, runs_of("mpc"), "ideal MPC"))
-    for N in horizons:
-        rows.append(_row("RMPC", N, runs_of("rmpc", N=N), "RMPC"))
-    for N in horizons:
-        rows.append(_row("RSMPC", N, runs_of("rsmpc", N=N), "RSMPC"))
+        rows.append(_row(reading, "PID", None, runs_of("pid"), "PID"))
+        ideal = [simulate(nominal, "mpc", seed=seed)]
+        rows.append(_row(reading, "ideal MPC (W known)", 10, ideal, "ideal MPC"))
+        rows.append(_row(reading, "MPC (W unknown, observer)", 10, runs_of("mpc"), "ideal MPC"))
+        for N in horizons:
+            rows.append(_row(reading, "RMPC", N, runs_of("rmpc", N=N), "RMPC"))
+        for N in horizons:
+            rows.append(_row(reading, "RSMPC", N, runs_of("rsmpc", N=N), "RSMPC"))
     return pd.DataFrame(rows)
