@@ -78,6 +78,20 @@ def _step_lookup(
     return lookup
 
 
+def _section_values(
+    label: str, values: Any, n: int, unit: str, lo: float, hi: float, low_inclusive: bool = True
+) -> np.ndarray:
+    """The values of ``n`` sections of ``track.<label>``, one each, within ``[lo, hi]``."""
+    arr = _as_array(values, f"track.{label} values")
+    if arr.size != n:
+        raise ValueError(
+            f"track.{label} values must have one entry per position ({n}), got {arr.size}"
+        )
+    for i, v in enumerate(arr):
+        check_range(f"track.{label} values[{i}] ({unit})", v, lo, hi, low_inclusive=low_inclusive)
+    return arr
+
+
 def _as_array(value: Any, name: str) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float)
@@ -199,16 +213,9 @@ class Track:
         sl_pos = self._check_sections(
             "speed_limits", _as_array(self.speed_limit_positions_m, "track.speed_limits"), length
         )
-        sl_val = _as_array(self.speed_limits_mps, "track.speed_limits values")
-        if sl_val.size != sl_pos.size:
-            raise ValueError(
-                f"track.speed_limits values must have one entry per position "
-                f"({sl_pos.size}), got {sl_val.size}"
-            )
-        for i, v in enumerate(sl_val):
-            check_range(
-                f"track.speed_limits values[{i}] (m/s)", v, 0.0, math.inf, low_inclusive=False
-            )
+        sl_val = _section_values(
+            "speed_limits", self.speed_limits_mps, sl_pos.size, "m/s", 0.0, math.inf, False
+        )
 
         # gradients (empty = level)
         gr_pos_in = _as_array(self.gradient_positions_m, "track.gradients positions")
@@ -216,18 +223,14 @@ class Track:
         if gr_pos_in.size == 0 and gr_val.size == 0:
             gr_pos_in, gr_val = np.zeros(1), np.zeros(1)
         gr_pos = self._check_sections("gradients", gr_pos_in, length)
-        if gr_val.size != gr_pos.size:
-            raise ValueError(
-                f"track.gradients values must have one entry per position "
-                f"({gr_pos.size}), got {gr_val.size}"
-            )
-        for i, g in enumerate(gr_val):
-            check_range(
-                f"track.gradients values[{i}] (permil)",
-                g,
-                -MAX_ABS_GRADIENT_PERMIL,
-                MAX_ABS_GRADIENT_PERMIL,
-            )
+        gr_val = _section_values(
+            "gradients",
+            gr_val,
+            gr_pos.size,
+            "permil",
+            -MAX_ABS_GRADIENT_PERMIL,
+            MAX_ABS_GRADIENT_PERMIL,
+        )
 
         # curves (empty = straight)
         cv_pos_in = _as_array(self.curve_positions_m, "track.curvatures positions")

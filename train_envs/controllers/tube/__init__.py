@@ -7,35 +7,16 @@ in closed form), :mod:`.kernels` (sources of the compiled twins), :mod:`.tube_mp
 (:class:`TubeMPC`), :mod:`.rsmpc` (:class:`RobustSelfTriggeredMPC`).
 """
 
-from train_envs.controllers.tube.model import (
-    ROW_DU,
-    ROW_S,
-    ROW_U,
-    ROW_V,
-    StoppingModel,
-    TubeFeedback,
-    stopping_model,
-    terminal_weight,
-    tube_feedback,
-    tube_tightening,
-)
+from train_envs.controllers.tube import model as _model
+from train_envs.controllers.tube.model import *  # noqa: F403 (its __all__)
 from train_envs.controllers.tube.rsmpc import RobustSelfTriggeredMPC
 from train_envs.controllers.tube.settings import DEFAULT_W_BOUND_MPS2, TubeSettings
 from train_envs.controllers.tube.tube_mpc import TubeMPC
 
 __all__ = [
+    *_model.__all__,
     "DEFAULT_W_BOUND_MPS2",
-    "ROW_DU",
-    "ROW_S",
-    "ROW_U",
-    "ROW_V",
     "RobustSelfTriggeredMPC",
-    "StoppingModel",
-    "TubeFeedback",
     "TubeMPC",
     "TubeSettings",
-    "stopping_model",
-    "terminal_weight",
-    "tube_feedback",
-    "tube_tightening",
 ]
