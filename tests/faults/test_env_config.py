@@ -98,3 +98,23 @@ def test_action_bounds_narrow_a_parameter_range():
 def test_bad_action_bounds_are_refused(bounds, match):
     with pytest.raises(ValueError, match=match):
         gym.make(PID_ID, config={"action_bounds": bounds})
+
+
+def test_a_policy_runs_in_the_env_config_it_was_trained_in():
+    from types import SimpleNamespace
+
+    from agents.evaluation import EnvCase, PolicyDriver
+
+    trained = {"action_mode": "delta", "disturbance": {"random_bound_mps2": 0.05}}
+    driver = PolicyDriver("unused", name="p")
+    driver._policy = SimpleNamespace(config={"env_id": PID_ID, "env_config": trained})
+    case = driver.trained_case(EnvCase(PID_ID, {"disturbance": {"random_hold_s": 2.0}}))
+    assert case.config == {
+        "action_mode": "delta",
+        "disturbance": {"random_bound_mps2": 0.05, "random_hold_s": 2.0},
+    }
+    cfg = case.make().unwrapped.settings
+    assert cfg.action.mode == "delta" and cfg.scenario.disturbance["random_bound_mps2"] == 0.05
+    # another id: the case as given
+    other = EnvCase("TrainEnvs/Urban004-v0")
+    assert driver.trained_case(other) is other
