@@ -114,7 +114,10 @@ class PolicyDriver:
     """A trained SB3 model (run folder, ``best/`` or ``.zip``), deterministic actions.
 
     ``algo`` is read from the run's ``config.json`` (or the saved policy class) when
-    omitted; ``name`` defaults to the run folder's name.
+    omitted; ``name`` defaults to the run folder's name. On the id it was trained on,
+    the policy runs in its training env: the run's saved ``env_config`` with the
+    case's config merged over it (``train_envs.envs.config.merge``), so policies
+    trained in different modes compare in one table.
     """
 
     path: str | Path
@@ -151,9 +154,20 @@ class PolicyDriver:
             )
         return pol.predict
 
+    def trained_case(self, case: EnvCase) -> EnvCase:
+        """``case`` with the policy's training env config under its own config."""
+        record = self.load().config
+        if record.get("env_id") != case.env_id or not record.get("env_config"):
+            return case
+        from train_envs.envs.config import merge
+
+        config = merge(dict(record["env_config"]), dict(case.config))
+        return EnvCase(case.env_id, config, case.name)
+
     def evaluate(self, case: EnvCase, seeds: Sequence[int]) -> pd.DataFrame:
         from train_envs.envs import evaluate
 
+        case = self.trained_case(case)
         env = case.make()
         try:
             fn = self._action_fn(env)
@@ -162,7 +176,7 @@ class PolicyDriver:
         return evaluate(check_id(case), fn, seeds=seeds, config=case.config, label=self.name)
 
     def trajectory(self, case: EnvCase, seed: int) -> tuple[pd.DataFrame, Any]:
-        return _env_rollout(case, self._action_fn, seed)
+        return _env_rollout(self.trained_case(case), self._action_fn, seed)
 
 
 @dataclass

@@ -22,12 +22,18 @@ Definitions (all integrals by the rectangle rule over the control period ``dt``)
 * Constraint violations: max overspeed above the limit and the time spent over it,
   the fraction of steps whose command saturated the force envelope, and the largest
   command rate (per car where commands are per car) beyond the limit.
+* Safety (the runner's supervision columns, :mod:`train_envs.simulation.supervision`):
+  ``atp_interventions`` (ATP brake applications), ``atp_brake_time_s``, ``overrun_m``
+  (largest distance beyond the stopping window), ``max_coupler_excess`` (fraction
+  beyond the coupler limits) and ``safety_cost = Σ_k (overspeed_k + atp_k +
+  coupler_excess_k) dt + overrun_m`` over the control periods ``k`` (every row but the
+  final state): the sum of the env's per-step ``info["cost"]`` over the episode.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 import pandas as pd
@@ -168,4 +174,25 @@ def episode_metrics(
         m["max_rate_excess_Nps"] = max(0.0, rate - du_max_Nps)
     if "fallback" in names:
         m["fallback_fraction"] = _nanmean(col("fallback"))
+    if "atp_brake" in names:
+        m.update(_safety(col, "coupler_excess" in names, dt_s))
     return m
+
+
+def _safety(col: Callable[[str], np.ndarray], coupled: bool, dt_s: float) -> dict[str, float]:
+    """The safety metrics of the supervision columns (see the module docstring)."""
+    atp = col("atp_brake")
+    periods = slice(0, max(len(atp) - 1, 1))  # the last row is the final state
+    rises = np.count_nonzero(np.diff(atp, prepend=0.0) > 0.0)
+    out = {
+        "atp_interventions": float(rises),
+        "atp_brake_time_s": float(np.sum(atp[periods]) * dt_s),
+        "overrun_m": float(np.max(col("overrun_m"))),
+    }
+    integral = np.sum(col("overspeed_mps")[periods]) + np.sum(atp[periods])
+    if coupled:
+        exc = col("coupler_excess")
+        out["max_coupler_excess"] = float(np.max(exc))
+        integral = integral + np.sum(exc[periods])
+    out["safety_cost"] = float(integral * dt_s + out["overrun_m"])
+    return out

@@ -15,6 +15,7 @@ mean speed errors 0.5 % apart; pass ``dt_sim_s`` to :func:`get_scenario` to chan
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -42,7 +43,11 @@ from train_envs.plants.resistance import (
 )
 from train_envs.reference import Reference
 from train_envs.trains import TrainParams, get_train
-from train_envs.validation import check_choice, check_positive, check_range
+from train_envs.validation import check_choice, check_positive, check_range, is_json_path
+
+#: stopping window [m] of the runs that do not set ``extra["stop_window_m"]`` (a stop
+#: within ±0.5 m of the mark counts as accurate; platform-door lines ask ±0.3 m)
+DEFAULT_STOP_WINDOW_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -75,8 +80,21 @@ class DisturbanceSpec:
                 f"disturbance.wind must be None, 'constant' or 'harmonic', got {self.wind!r}"
             )
         check_range("disturbance.random_bound_mps2", self.random_bound_mps2, 0.0, 1.0)
+        check_range("disturbance.w0_mps2", self.w0_mps2, -1.0, 1.0)
+        check_range("disturbance.w1_mps2", self.w1_mps2, -1.0, 1.0)
+        check_range("disturbance.omega_radps", self.omega_radps, 0.0, 100.0)
+        check_range(
+            "disturbance.random_hold_s", self.random_hold_s, 0.0, 3600.0, low_inclusive=False
+        )
+        if not isinstance(self.davis_variation, bool):
+            raise ValueError(
+                f"disturbance.davis_variation must be true or false, got {self.davis_variation!r}"
+            )
         for name in ("mass_factor_range", "davis_factor_range"):
-            lo, hi = getattr(self, name)
+            pair = getattr(self, name)
+            if not (isinstance(pair, (tuple, list)) and len(pair) == 2):
+                raise ValueError(f"disturbance.{name} must be a pair (lo, hi), got {pair!r}")
+            lo, hi = pair
             check_range(f"disturbance.{name}[0]", lo, 0.5, 2.0)
             check_range(f"disturbance.{name}[1]", hi, lo, 2.0)
 
@@ -114,13 +132,55 @@ class Scenario:
             raise ValueError(
                 f"dt_ctrl_s ({self.dt_ctrl_s}) must be a multiple of dt_sim_s ({self.dt_sim_s})"
             )
-        check_positive("t_max_s", self.t_max_s)
+        check_range("dt_ctrl_s", self.dt_ctrl_s, 0.0, 10.0, low_inclusive=False)
+        check_range("t_max_s", self.t_max_s, 0.0, 86400.0, low_inclusive=False)
         check_range("v0_mps", self.v0_mps, 0.0, 200.0)
         check_choice("input_mode", self.input_mode, ("total", "per_car"))
+        for name, kind in (
+            ("train", TrainParams),
+            ("track", Track),
+            ("reference", Reference),
+            ("actuator", ActuatorParams),
+            ("disturbance", DisturbanceSpec),
+            ("extra", dict),
+        ):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(
+                    f"scenario.{name} must be a {kind.__name__}, got {getattr(self, name)!r}"
+                )
+        length = float(self.track.length_m)
+        check_range("s0_m", self.s0_m, 0.0, length, high_inclusive=False)
         if self.s_stop_m is not None:
-            check_range("s_stop_m", self.s_stop_m, self.s0_m, math.inf, low_inclusive=False)
+            check_range("s_stop_m", self.s_stop_m, self.s0_m, length, low_inclusive=False)
+        n = self.n_cars
+        if isinstance(n, bool) or not isinstance(n, int) or n not in (1, self.train.n_cars):
+            raise ValueError(
+                f"n_cars must be 1 (single-point model) or the train's {self.train.n_cars} "
+                f"cars, got {n!r}"
+            )
+        if self.scheduled_time_s is not None:
+            check_range(
+                "scheduled_time_s", self.scheduled_time_s, 0.0, 86400.0, low_inclusive=False
+            )
+        check_positive("du_max_Nps", self.du_max_Nps, allow_inf=True)
+        check_range("overrun_m", self.overrun_m, 0.0, 10_000.0)
+        if isinstance(self.u0, str):
+            check_choice("u0", self.u0, ("hold",))
+        else:
+            tr = self.train
+            check_range(
+                "u0 (initial force, N)",
+                self.u0,
+                -tr.max_brake_N(self.v0_mps),
+                tr.max_traction_N(self.v0_mps),
+            )
 
     # --------------------------------------------------------------- helpers
+    def stop_window(self) -> float:
+        """The stopping window [m] beyond the stop that still counts as stopped:
+        ``extra["stop_window_m"]``, else :data:`DEFAULT_STOP_WINDOW_M`."""
+        return float(self.extra.get("stop_window_m", DEFAULT_STOP_WINDOW_M))
+
     def speed_limit_at(self, s: float) -> float:
         """The limit governing the train with its head at ``s`` (rear-clearance rule)."""
         return float(effective_limit_fn(self.track, self.train.length_m)(s))
@@ -171,10 +231,29 @@ class Scenario:
         )
 
     def with_overrides(self, **kw: Any) -> Scenario:
-        """Copy with fields replaced (validated again)."""
+        """Copy with fields replaced (validated again).
+
+        A new ``track`` changes the line under the reference and the stop, so it needs a
+        new ``reference`` with it (and ``s_stop_m`` on a stopping run); otherwise this
+        refuses (:func:`real_line_scenario` builds a whole run on a line).
+        """
         unknown = set(kw) - set(self.__dataclass_fields__)
         if unknown:
             raise ValueError(f"unknown scenario field(s): {', '.join(sorted(unknown))}")
+        if "track" in kw and kw["track"] is not self.track:
+            missing = [
+                f
+                for f in ("reference", "s_stop_m")
+                if f not in kw and (f == "reference" or self.s_stop_m is not None)
+            ]
+            if missing:
+                raise ValueError(
+                    f"scenario override track needs {' and '.join(missing)} with it (the "
+                    "reference and stop belong to the old line); or build the run with "
+                    "real_line_scenario(track, train, ...)"
+                )
+        if isinstance(kw.get("disturbance"), dict):
+            kw["disturbance"] = DisturbanceSpec(**kw["disturbance"])
         return replace(self, **kw)
 
 
@@ -344,7 +423,7 @@ def _paper000(name: str, desc: str, track_name: str, disturbance: DisturbanceSpe
             "u_max_car_N": 7e4,
             "u_min_car_N": -6.5e4,
             "du_max_car_Nps": 6e4,
-            "l_safe_m": 0.2,
+            "l_safe_m": train.coupler.max_deformation_m,
             "l_d_m": 1.2,
         },
     )
@@ -439,7 +518,7 @@ def paper002_cruise() -> Scenario:
         input_mode="per_car",
         disturbance=DisturbanceSpec(davis_variation=True),
         u0=0.0,
-        extra={"u_bound_car_N": 30e3, "coupler_def_max_m": 0.02},
+        extra={"u_bound_car_N": 30e3, "coupler_def_max_m": train.coupler.max_deformation_m},
     )
 
 
@@ -467,7 +546,7 @@ def paper003_cruise() -> Scenario:
         input_mode="per_car",
         actuator=ActuatorParams(order=2, omega_n_radps=2.0, zeta=0.8),
         u0=0.0,
-        extra={"coupler_def_max_m": 0.07},
+        extra={"coupler_def_max_m": train.coupler.max_deformation_m},
     )
 
 
@@ -502,8 +581,8 @@ def paper004_urban() -> Scenario:
 
 
 def real_line_scenario(
-    track_name: str,
-    train_name: str,
+    track_name: str | os.PathLike[str],
+    train_name: str | os.PathLike[str],
     from_stop: int = 0,
     to_stop: int | None = None,
     *,
@@ -511,7 +590,8 @@ def real_line_scenario(
     dt_ctrl_s: float = 0.2,
     name: str | None = None,
 ) -> Scenario:
-    """Station-to-station run on a shipped TTOBench line.
+    """Station-to-station run on a TTOBench line: a catalogue name, or the path of the
+    user's own TTOBench-format track JSON (and likewise the train).
 
     The reference meets a timetable with ``time_supplement`` (8 % default, a common
     running-time supplement) over the minimum running time of the train with 85 % of
@@ -519,6 +599,9 @@ def real_line_scenario(
     0.5 s traction lag and 0.2 s dead time (typical EMU traction response; assumed).
     """
     full = get_track(track_name)
+    train = get_train(train_name)
+    track_name = full.name if is_json_path(track_name) else track_name
+    train_name = train.name if is_json_path(train_name) else train_name
     n_stops = len(full.stops_m)
     to_stop = from_stop + 1 if to_stop is None else to_stop
     if not (0 <= from_stop < to_stop < n_stops):
@@ -528,7 +611,6 @@ def real_line_scenario(
         )
     s_a, s_b = float(full.stops_m[from_stop]), float(full.stops_m[to_stop])
     track = full.section(s_a, s_b)
-    train = get_train(train_name)
     length = s_b - s_a
     ref_train = reference_train(train)
     t_min = float(

@@ -17,17 +17,28 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import cache, cached_property
 from importlib import resources
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from train_envs.effort import EffortCurve, ForceEnvelope
 from train_envs.plants.physics import davis_N
-from train_envs.validation import check_choice, check_nonnegative, check_positive, check_range
+from train_envs.validation import (
+    check_choice,
+    check_nonnegative,
+    check_positive,
+    check_range,
+    is_json_path,
+)
+
+if TYPE_CHECKING:
+    from importlib.resources.abc import Traversable
 
 G = 9.81  # m/s², gravitational acceleration used throughout
 KMH = 1.0 / 3.6  # m/s per km/h
@@ -39,16 +50,23 @@ class CouplerParams:
 
     ``stiffness_N_per_m`` is k, ``damping_Ns_per_m`` is d (0 for the papers' pure
     springs), ``rest_length_m`` is l (000 Table 1: 1.2 m; it only shifts positions).
+    ``max_force_N`` and ``max_deformation_m`` are the limits of ``|f|`` and of the
+    deformation ``|x_{i-1} - x_i - l|`` (``inf``: none); the runner's supervision flags
+    a run beyond them.
     """
 
     stiffness_N_per_m: float = 1e7
     damping_Ns_per_m: float = 0.0
     rest_length_m: float = 0.0
+    max_force_N: float = math.inf
+    max_deformation_m: float = math.inf
 
     def __post_init__(self) -> None:
         check_positive("coupler.stiffness_N_per_m", self.stiffness_N_per_m)
         check_nonnegative("coupler.damping_Ns_per_m", self.damping_Ns_per_m)
         check_nonnegative("coupler.rest_length_m", self.rest_length_m)
+        check_positive("coupler.max_force_N", self.max_force_N, allow_inf=True)
+        check_positive("coupler.max_deformation_m", self.max_deformation_m, allow_inf=True)
 
 
 @dataclass(frozen=True)
@@ -260,7 +278,10 @@ def _paper000() -> TrainParams:
         max_brake_force_N=6.5e4 * n,
         max_speed_mps=45.8,
         service_decel_mps2=0.8,
-        coupler=CouplerParams(stiffness_N_per_m=1e7, damping_Ns_per_m=0.0, rest_length_m=1.2),
+        # l_safe 0.2 m: the bound of paper 000's spacing constraint |x_{i-1} - x_i - l|
+        coupler=CouplerParams(
+            stiffness_N_per_m=1e7, damping_Ns_per_m=0.0, rest_length_m=1.2, max_deformation_m=0.2
+        ),
         regen_efficiency=0.0,
         source=(
             "Paper 000 (Wang, Xing, Wang, IEEE Access 2024) Table 1: 6 cars of 64.8 t, "
@@ -304,7 +325,7 @@ def _paper002() -> TrainParams:
         max_traction_force_N=30e3 * n,
         max_brake_force_N=30e3 * n,
         max_speed_mps=85.0,
-        coupler=CouplerParams(stiffness_N_per_m=1e7),
+        coupler=CouplerParams(stiffness_N_per_m=1e7, max_deformation_m=0.02),  # 002 §5: 20 mm
         lead_car_aero=True,
         source=(
             "Paper 002 (Xu et al. 2019) Table 1, CRH-3 with 4 cars of 47.5 t: c0* 7.75e-3 "
@@ -330,7 +351,7 @@ def _paper003() -> TrainParams:
         max_traction_force_N=60e3 * n,
         max_brake_force_N=60e3 * n,
         max_speed_mps=300 * KMH,
-        coupler=CouplerParams(stiffness_N_per_m=8e5),
+        coupler=CouplerParams(stiffness_N_per_m=8e5, max_deformation_m=0.07),  # as 003's bound
         lead_car_aero=True,
         source=(
             "Paper 003 (fuzzy constrained predictive control) uses Shinkansen parameters whose "
@@ -374,14 +395,34 @@ def _paper004() -> TrainParams:
 
 
 # --------------------------------------------------------------- TTOBench trains
+#: plausibility bounds of a TTOBench train (SI): anything outside is a unit or data error
+TTOBENCH_TRAIN_BOUNDS: dict[str, tuple[float, float]] = {
+    "mass": (1e3, 2e7),  # 1 t .. 20,000 t (the heaviest freight trains)
+    "max speed": (1.0, 600 * KMH),
+    "max acceleration": (0.01, 5.0),
+    "max deceleration": (0.01, 5.0),
+    "rho": (0.0, 1.0),
+    "num coaches": (1.0, 100.0),
+    "efficiency traction": (0.2, 1.0),
+    "efficiency reg brake": (0.0, 1.0),
+}
+
+
 def _unit_value(entry: dict[str, Any], name: str) -> tuple[float, str]:
     try:
-        return float(entry["value"]), str(entry["unit"])
-    except (KeyError, TypeError) as exc:
-        raise ValueError(f"TTOBench train field {name!r} must have 'value' and 'unit'") from exc
+        value, unit = float(entry["value"]), str(entry["unit"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(
+            f"TTOBench train field {name!r} must be {{'value': <number>, 'unit': <text>}}, "
+            f"got {entry!r}"
+        ) from exc
+    if not math.isfinite(value):
+        raise ValueError(f"TTOBench train field {name!r} must be finite, got {value}")
+    return value, unit
 
 
 def _to_si(value: float, unit: str, field_name: str) -> float:
+    """``value`` in ``unit`` converted to SI; ``"%"`` is a percentage (``10 %`` is 0.1)."""
     factors = {
         "kg": 1.0,
         "t": 1e3,
@@ -397,25 +438,60 @@ def _to_si(value: float, unit: str, field_name: str) -> float:
         "-": 1.0,
     }
     if unit == "%":
-        # TTOBench mixes conventions (70.0 "%" and 0.9 "%"): values <= 1 are fractions.
-        return value / 100.0 if value > 1.0 else value
+        return value / 100.0
     if unit not in factors:
-        raise ValueError(f"TTOBench train field {field_name!r}: unsupported unit {unit!r}")
+        raise ValueError(
+            f"TTOBench train field {field_name!r}: unsupported unit {unit!r}; "
+            f"expected one of {sorted([*factors, '%'])}"
+        )
     return value * factors[unit]
 
 
+def _loss_map_efficiency(entry: dict[str, Any], name: str, p_max_W: float) -> float:
+    """Mean efficiency ``1 − losses / P_max`` of a loss map ``[[load %, speed, losses],
+    ...]`` at its highest load (100 % in TTOBench's maps)."""
+    rows = entry.get("values")
+    if not isinstance(rows, list) or not rows:
+        raise ValueError(f"TTOBench train field {name!r}: the loss map has no rows")
+    unit = entry.get("units", {}).get("losses", "kW")
+    try:
+        table = [(float(r[0]), _to_si(float(r[2]), unit, name)) for r in rows]
+    except (TypeError, ValueError, IndexError) as exc:
+        raise ValueError(
+            f"TTOBench train field {name!r}: rows must be [load %, speed, losses] numbers ({exc})"
+        ) from None
+    if not math.isfinite(p_max_W) or p_max_W <= 0:
+        raise ValueError(f"TTOBench train field {name!r}: a loss map needs a finite max power")
+    top = max(load for load, _ in table)
+    losses = [loss for load, loss in table if load == top]
+    return max(0.05, 1.0 - sum(losses) / len(losses) / p_max_W)
+
+
 def train_from_ttobench(data: dict[str, Any]) -> TrainParams:
-    """Build :class:`TrainParams` from a parsed TTOBench train JSON document."""
+    """Build :class:`TrainParams` from a parsed TTOBench train JSON document.
+
+    Units are converted to SI (``"%"`` is a percentage); values outside
+    :data:`TTOBENCH_TRAIN_BOUNDS` and traction or braking forces above twice the
+    train's weight (a unit error: adhesion stays below 0.4) are refused.
+    """
+    if not isinstance(data, dict):
+        raise ValueError(f"a TTOBench train must be a JSON object, got {type(data).__name__}")
 
     def efficiency(name: str, power_field: str) -> float:
         entry = data.get(name)
         if isinstance(entry, dict) and "values" in entry:
-            # Loss map [[load %, speed km/h, losses kW], ...]: summarise as the mean
-            # efficiency at full load, 1 - losses / max power.
-            p_max = get(power_field)
-            losses = [row[2] * 1e3 for row in entry["values"] if float(row[0]) >= 100.0]
-            return max(0.05, 1.0 - sum(losses) / len(losses) / p_max)
+            return checked(name, _loss_map_efficiency(entry, name, get(power_field, math.inf)))
         return get(name, 1.0 if "traction" in name else 0.0)
+
+    def checked(name: str, x: float) -> float:
+        if name in TTOBENCH_TRAIN_BOUNDS:
+            lo, hi = TTOBENCH_TRAIN_BOUNDS[name]
+            if not lo <= x <= hi:
+                raise ValueError(
+                    f"TTOBench train field {name!r} = {x:g} (SI) is implausible; allowed "
+                    f"[{lo:g}, {hi:g}] (check the value and its unit)"
+                )
+        return x
 
     def get(name: str, default: float | None = None) -> float:
         if name not in data:
@@ -423,15 +499,25 @@ def train_from_ttobench(data: dict[str, Any]) -> TrainParams:
                 raise ValueError(f"TTOBench train is missing required field {name!r}")
             return default
         v, u = _unit_value(data[name], name)
-        return _to_si(v, u, name)
+        return checked(name, _to_si(v, u, name))
 
     name = str(data.get("metadata", {}).get("id", "ttobench_train"))
+    mass = get("mass")
     max_acc = get("max acceleration", math.inf)
     max_dec = get("max deceleration", math.inf)
-    n_cars = int(get("num coaches", 1.0))
+    n_cars = get("num coaches", 1.0)
+    if not float(n_cars).is_integer():
+        raise ValueError(f"TTOBench train field 'num coaches' must be an integer, got {n_cars}")
+    for force in ("max traction force", "max reg braking force", "max pn braking force"):
+        f = get(force, 0.0)
+        if not 0.0 <= f <= 2.0 * mass * G:
+            raise ValueError(
+                f"TTOBench train field {force!r} = {f:g} N is implausible for a "
+                f"{mass / 1e3:g} t train; allowed [0, {2.0 * mass * G:g}] N (twice its weight)"
+            )
     return TrainParams(
         name=name,
-        mass_kg=get("mass"),
+        mass_kg=mass,
         rotating_mass_factor=get("rho", 0.0),
         davis_a_N=get("rolling resistance r0"),
         davis_b_Ns_per_m=get("rolling resistance r1", 0.0),
@@ -447,7 +533,7 @@ def train_from_ttobench(data: dict[str, Any]) -> TrainParams:
         max_speed_mps=get("max speed", math.inf),
         traction_efficiency=efficiency("efficiency traction", "max traction power"),
         regen_efficiency=efficiency("efficiency reg brake", "max reg braking power"),
-        n_cars=n_cars,
+        n_cars=int(n_cars),
         source=f"TTOBench v1.3 train {name} (BSD-2-Clause, Kouzoupis, Pendharkar, Corman 2023)",
         **rolling_stock_from_ttobench(data),
     )
@@ -497,6 +583,16 @@ def rolling_stock_from_ttobench(data: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def train_from_ttobench_file(path: str | os.PathLike[str] | Traversable) -> TrainParams:
+    """:func:`train_from_ttobench` of a JSON file; every error names the file."""
+    try:
+        text = path.read_text() if hasattr(path, "read_text") else Path(path).read_text()
+        data = json.loads(text)
+        return train_from_ttobench(data)
+    except (OSError, ValueError) as exc:  # JSONDecodeError is a ValueError
+        raise ValueError(f"TTOBench train file {str(path)!r}: {exc}") from None
+
+
 TTOBENCH_TRAIN_FILES = {
     "CN_Beijing_Subway": "CN_Beijing_Subway.json",
     "CH_Stadler_FLIRT_TPF": "CH_Stadler_FLIRT_TPF.json",
@@ -520,11 +616,14 @@ def list_trains() -> list[str]:
 
 
 @cache
-def get_train(name: str) -> TrainParams:
-    """Return a catalogue train by name (see :func:`list_trains`)."""
+def get_train(name: str | os.PathLike[str]) -> TrainParams:
+    """Return a catalogue train by name (see :func:`list_trains`), or the train of a
+    user's TTOBench-format JSON file when ``name`` is a path (ends in ``.json`` or
+    holds a directory separator)."""
+    if is_json_path(name):
+        return train_from_ttobench_file(os.fspath(name))
     check_choice("train", name, list_trains(), sort=False)
     if name in PAPER_TRAINS:
         return PAPER_TRAINS[name]()
     folder = resources.files("train_envs") / "data" / "TTOBench" / "trains"
-    ref = folder / TTOBENCH_TRAIN_FILES[name]
-    return train_from_ttobench(json.loads(ref.read_text()))
+    return train_from_ttobench_file(folder / TTOBENCH_TRAIN_FILES[name])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 
 import numpy as np
@@ -81,3 +82,11 @@ def check_choice(name: str, value: str, choices: Sequence[str], *, sort: bool = 
         listed = sorted(choices) if sort else choices
         raise ValueError(f"unknown {name} {value!r}; choose one of: {', '.join(listed)}")
     return value
+
+
+def is_json_path(name: object) -> bool:
+    """Whether ``name`` names a JSON file (a path-like, or a string ending in ``.json``
+    or holding a directory separator) rather than a catalogue entry."""
+    return isinstance(name, os.PathLike) or (
+        isinstance(name, str) and (name.endswith(".json") or os.sep in name)
+    )

@@ -181,6 +181,7 @@ def test_default_config_and_registered_base_configs():
         "controller",
         "controller_params",
         "action_params",
+        "action_bounds",
         "action_mode",
         "delta_scale",
         "decision_interval",
@@ -189,14 +190,15 @@ def test_default_config_and_registered_base_configs():
         "reward_weights",
         "disturbance",
         "max_episode_steps",
+        "supervision",
     ]
     assert EnvConfig.resolve(cfg) == EnvConfig()
     for base, _doc in ENV_SPECS.values():
         flat = EnvConfig.resolve(base).flat()
         assert all(flat[k] == v for k, v in base.items())
-    # the Urban004 id fixes a controller argument; a user's controller_params replace it
+    # the Urban004 id fixes a controller argument; a user's controller_params merge over it
     env = gym.make("TrainEnvs/Urban004-v0", config={"controller_params": {}}).unwrapped
-    assert env.config["controller_params"] == {}
+    assert env.config["controller_params"] == {"alpha_order": "clip"}
 
 
 @pytest.mark.parametrize(

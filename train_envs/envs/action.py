@@ -9,13 +9,16 @@ same one the tuners use).
 ``mode = "absolute"``: ``u = clip(a, −1, 1)``. ``mode = "delta"``: ``u ← clip(u +
 delta_scale · clip(a, −1, 1), −1, 1)``, starting from the parameters' base values at
 reset. Components outside ``[−1, 1]`` are clipped and counted; NaN/inf raise
-``ValueError``.
+``ValueError``. ``config action.bounds`` narrows a parameter's range (the registered
+ids use it where a corner of the controller's own range makes the run diverge).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 from gymnasium import spaces
@@ -23,6 +26,25 @@ from gymnasium import spaces
 from train_envs.controllers.base import Controller, TunableParam
 from train_envs.controllers.params import ParamSpace
 from train_envs.envs.config import ActionConfig
+
+
+def _narrowed(
+    spec: TunableParam | None, name: str, lo: float, hi: float, base: Mapping[str, float], ctrl: str
+) -> TunableParam:
+    """``spec`` with the range ``[lo, hi]`` (config ``action.bounds``), checked."""
+    where = "config action.bounds (action_bounds)"
+    if spec is None:
+        raise ValueError(f"{where}: {ctrl} has no tunable parameter {name!r}")
+    if not spec.low <= lo < hi <= spec.high:
+        raise ValueError(
+            f"{where} {name!r}: ({lo:g}, {hi:g}) must lie inside the controller's range "
+            f"[{spec.low:g}, {spec.high:g}]"
+        )
+    if not lo <= base[name] <= hi:
+        raise ValueError(
+            f"{where} {name!r}: ({lo:g}, {hi:g}) must contain the base value {base[name]:g}"
+        )
+    return replace(spec, low=lo, high=hi, default=min(max(spec.default, lo), hi))
 
 
 class TuningAction:
@@ -55,8 +77,10 @@ class TuningAction:
                 )
         if not names:
             raise ValueError(f"controller {controller_name} exposes no tunable parameters")
-        self.specs: tuple[TunableParam, ...] = tuple(specs[n] for n in names)
         self.base_params = controller.get_params()
+        for n, (lo, hi) in config.bounds.items():
+            specs[n] = _narrowed(specs.get(n), n, lo, hi, self.base_params, controller_name)
+        self.specs: tuple[TunableParam, ...] = tuple(specs[n] for n in names)
         self.param_space = ParamSpace(self.specs)
         self.base_unit = self.param_space.unit_of(self.base_params)
         self.space = spaces.Box(-1.0, 1.0, shape=(len(self.specs),), dtype=np.float32)
@@ -126,3 +150,12 @@ class TuningAction:
                 self.params_changed = True
             params = dict(self._applied_params)
         return clipped, params
+
+
+def action_corners(n: int, rng: np.random.Generator, limit: int = 64) -> list[np.ndarray]:
+    """All ``2^n`` corners of the action box ``[−1, 1]^n`` if there are at most
+    ``limit``; else all −1, all +1 and ``limit − 2`` distinct others drawn with ``rng``."""
+    if 2**n <= limit:
+        return [np.array(c, float) for c in itertools.product((-1.0, 1.0), repeat=n)]
+    picks = [0, 2**n - 1, *(1 + rng.choice(2**n - 2, size=limit - 2, replace=False))]
+    return [np.array([1.0 if (int(k) >> i) & 1 else -1.0 for i in range(n)]) for k in picks]

@@ -17,6 +17,7 @@ scenario.disturbance        ``disturbance``         ``DisturbanceSpec`` fields
 controller.name             ``controller``          the inner controller
 controller.params           ``controller_params``   its fixed constructor arguments
 action.params               ``action_params``       exposed tunable parameters (None: all)
+action.bounds               ``action_bounds``       name -> (low, high) narrowing its range
 action.mode                 ``action_mode``         ``"absolute"`` or ``"delta"``
 action.delta_scale          ``delta_scale``         delta mode: unit change at ``|a| = 1``
 observation.preview_m       ``preview_m``           preview distance [m]
@@ -24,12 +25,15 @@ observation.preview_points  ``preview_points``      preview points (0: none)
 reward.weights              ``reward_weights``      objective -> weight
 episode.decision_interval   ``decision_interval``   control steps per env step
 episode.max_steps           ``max_episode_steps``   cap on env steps (None: no cap)
+episode.supervision         ``supervision``         ATP settings (``Supervision`` fields)
 ==========================  ======================  ========================================
 
-Mappings are replaced as a whole (``scenario.overrides``, ``real_line``,
-``disturbance``, ``controller.params``) except ``reward.weights``, merged key by key.
-Unknown keys and bad values raise a one-line ``ValueError`` naming the key and what it
-allows.
+Merge rule: a later layer's mapping merges into the earlier one key by key, nested
+mappings recursively (``{"real_line": {"sections": [(0, 1)]}}`` keeps the id's track
+and train, ``{"controller_params": {"Np": 20}}`` keeps its other arguments); any other
+value (``None`` included) replaces. To undo what an id sets, give the value wanted
+(e.g. the constructor's default). Unknown keys and bad values raise a one-line
+``ValueError`` naming the key and what it allows.
 """
 
 from __future__ import annotations
@@ -38,12 +42,14 @@ import copy
 import dataclasses
 import math
 import numbers
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from train_envs.envs.reward import DEFAULT_WEIGHTS, OBJECTIVES
 from train_envs.scenarios import DisturbanceSpec
+from train_envs.simulation import Supervision
 
 #: flat key -> (section, field), in the order of :meth:`EnvConfig.flat`
 FLAT_KEYS: dict[str, tuple[str, str]] = {
@@ -53,6 +59,7 @@ FLAT_KEYS: dict[str, tuple[str, str]] = {
     "controller": ("controller", "name"),
     "controller_params": ("controller", "params"),
     "action_params": ("action", "params"),
+    "action_bounds": ("action", "bounds"),
     "action_mode": ("action", "mode"),
     "delta_scale": ("action", "delta_scale"),
     "decision_interval": ("episode", "decision_interval"),
@@ -61,10 +68,9 @@ FLAT_KEYS: dict[str, tuple[str, str]] = {
     "reward_weights": ("reward", "weights"),
     "disturbance": ("scenario", "disturbance"),
     "max_episode_steps": ("episode", "max_steps"),
+    "supervision": ("episode", "supervision"),
 }
 _FLAT_OF = {target: flat for flat, target in FLAT_KEYS.items()}
-#: fields holding a mapping merged key by key (the others are replaced as a whole)
-_MERGED = {("reward", "weights")}
 REAL_LINE_KEYS = ("track", "train", "sections", "time_supplement")
 ACTION_MODES = ("absolute", "delta")
 
@@ -114,7 +120,8 @@ class ScenarioConfig:
     Attributes:
         name: scenario name; not used when ``real_line`` is set.
         overrides: :class:`~train_envs.scenarios.Scenario` field overrides.
-        real_line: ``None``, or real-line mode ``{"track": ..., "train": ..., "sections":
+        real_line: ``None``, or real-line mode ``{"track": ..., "train": ...`` (catalogue
+            names or paths of the user's TTOBench-format JSON files) ``, "sections":
             [(i, j), ...] or None for every consecutive pair of stops,
             "time_supplement": 0.08}``: reset samples a station-to-station run.
         disturbance: :class:`~train_envs.scenarios.DisturbanceSpec` fields merged over
@@ -131,9 +138,38 @@ class ScenarioConfig:
         self.overrides = _mapping("scenario", "overrides", self.overrides)
         if self.real_line is not None:
             self.real_line = _mapping("scenario", "real_line", self.real_line, REAL_LINE_KEYS)
+            rl = self.real_line
             for key in ("track", "train"):
-                if key not in self.real_line:
+                if key not in rl:
                     raise ValueError(f"{_name('scenario', 'real_line')} needs the key {key!r}")
+                if not isinstance(rl[key], (str, os.PathLike)) or not rl[key]:
+                    raise ValueError(
+                        f"{_name('scenario', 'real_line')} {key} must be a catalogue name or "
+                        f"a JSON path, got {rl[key]!r}"
+                    )
+            if "time_supplement" in rl:
+                ts = rl["time_supplement"]
+                ok = isinstance(ts, numbers.Real) and not isinstance(ts, bool)
+                if not (ok and 0.0 <= ts <= 1.0):
+                    raise ValueError(
+                        f"{_name('scenario', 'real_line')} time_supplement must be a number "
+                        f"in [0, 1], got {ts!r}"
+                    )
+            sections = rl.get("sections")
+            if sections is not None:
+                ok = isinstance(sections, Sequence) and len(sections) > 0
+                ok = ok and all(
+                    isinstance(p, Sequence)
+                    and len(p) == 2
+                    and all(isinstance(i, int) and not isinstance(i, bool) for i in p)
+                    and 0 <= p[0] < p[1]
+                    for p in sections
+                )
+                if not ok:
+                    raise ValueError(
+                        f"{_name('scenario', 'real_line')} sections must be None or a non-empty "
+                        f"list of stop pairs (i, j) with 0 <= i < j, got {sections!r}"
+                    )
         fields = tuple(DisturbanceSpec.__dataclass_fields__)
         self.disturbance = _mapping("scenario", "disturbance", self.disturbance, fields)
 
@@ -163,6 +199,8 @@ class ActionConfig:
     Attributes:
         params: names of the exposed tunable parameters, in action order (``None``: all
             of the controller's).
+        bounds: parameter name -> ``(low, high)`` replacing its range (inside the
+            controller's own range; the action's ``±1`` map to them).
         mode: ``"absolute"`` or ``"delta"``.
         delta_scale: delta mode: unit-range change per env step at ``|a| = 1``.
     """
@@ -170,6 +208,7 @@ class ActionConfig:
     params: list[str] | None = None
     mode: str = "absolute"
     delta_scale: float = 0.1
+    bounds: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         p = self.params
@@ -185,6 +224,16 @@ class ActionConfig:
                 f"{_name('action', 'mode')} must be 'absolute' or 'delta', got {self.mode!r}"
             )
         self.delta_scale = _real("action", "delta_scale", self.delta_scale, 0.0, strict=True)
+        self.bounds = _mapping("action", "bounds", self.bounds)
+        for n, b in self.bounds.items():
+            ok = isinstance(b, Sequence) and not isinstance(b, str) and len(b) == 2
+            ok = ok and all(isinstance(x, numbers.Real) and math.isfinite(x) for x in b)
+            if not (ok and b[0] < b[1]):
+                raise ValueError(
+                    f"{_name('action', 'bounds')} {n!r} must be a pair (low, high) of finite "
+                    f"numbers with low < high, got {b!r}"
+                )
+            self.bounds[n] = (float(b[0]), float(b[1]))
 
 
 @dataclass
@@ -226,16 +275,29 @@ class EpisodeConfig:
     Attributes:
         decision_interval: control steps per env step.
         max_steps: cap on env steps (``None``: the scenario's ``t_max`` alone ends it).
+        supervision: :class:`~train_envs.simulation.Supervision` fields (ATP on/off,
+            its margin, ending the episode at a safety violation) over its defaults.
     """
 
     decision_interval: int = 5
     max_steps: int | None = None
+    supervision: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         di = self.decision_interval
         self.decision_interval = _integer("episode", "decision_interval", di, 1)
         if self.max_steps is not None:
             self.max_steps = _integer("episode", "max_steps", self.max_steps, 1)
+        fields = tuple(Supervision.__dataclass_fields__)
+        self.supervision = _mapping("episode", "supervision", self.supervision, fields)
+        try:
+            Supervision(**self.supervision)
+        except ValueError as exc:
+            raise ValueError(f"{_name('episode', 'supervision')}: {exc}") from None
+
+    def supervisor(self) -> Supervision:
+        """The runner's :class:`~train_envs.simulation.Supervision` of these settings."""
+        return Supervision(**self.supervision)
 
 
 SECTIONS: dict[str, type] = {
@@ -266,10 +328,7 @@ class EnvConfig:
         state = cls().to_dict()
         for layer in layers:
             for (section, name), value in _targets(layer or {}).items():
-                if (section, name) in _MERGED and isinstance(value, Mapping):
-                    state[section][name] = {**state[section][name], **value}
-                else:
-                    state[section][name] = value
+                state[section][name] = merge(state[section][name], value)
         return cls(**{s: SECTIONS[s](**fields) for s, fields in state.items()})
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
@@ -280,6 +339,17 @@ class EnvConfig:
         """Every field under its flat key (deep copies)."""
         d = self.to_dict()
         return {flat: d[section][name] for flat, (section, name) in FLAT_KEYS.items()}
+
+
+def merge(base: Any, over: Any) -> Any:
+    """``over`` merged over ``base`` (the module's merge rule): mappings key by key,
+    recursively; anything else replaces."""
+    if not (isinstance(base, Mapping) and isinstance(over, Mapping)):
+        return copy.deepcopy(over)
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = merge(out.get(key), value)
+    return out
 
 
 def _targets(layer: Mapping[str, Any]) -> dict[tuple[str, str], Any]:

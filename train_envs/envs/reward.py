@@ -7,8 +7,21 @@ as :class:`train_envs.simulation.ClosedLoop` records it, period ``dt``)::
     jerk        = Σ_k ((a_k − a_{k−1}) / dt)² dt              [(m/s³)² s]
     energy      = ΔE,  E = (W_traction / η_t − η_r W_brake) / 3.6e6   [kWh]
     violation   = (Σ_k max(v_k − v_limit,k, 0) + Σ_k saturated_k) dt
+                  + atp + coupler + overrun      (the safety terms below)
     stop        = |s − s_stop|                  (last env step only)  [m]
     punctuality = |t − t_scheduled| / 10 s      (last env step only)
+
+The safety cost of the step (``info["cost"]``, Safety-Gymnasium's convention: a float
+≥ 0 per step, 0 when the step was safe) is the sum of its components
+(``info["cost_components"]``), from the runner's supervision columns
+(:mod:`train_envs.simulation.supervision`)::
+
+    overspeed = Σ_k max(v_k − v_limit,k, 0) dt      [m]
+    atp       = Σ_k atp_brake_k dt                  [s]  (time under the ATP brake)
+    coupler   = Σ_k coupler_excess_k dt             [s]  (fraction beyond the limits)
+    overrun   = increase of max(s − s_stop − window, 0) over the step  [m]
+
+Summed over an episode it equals the ``safety_cost`` episode metric.
 
 ``reward = −Σ_i w_i c_i`` in the order of :data:`OBJECTIVES`. ``a_{k−1}`` of the first
 control step of an env step is the last one of the previous env step (at reset: the
@@ -21,6 +34,7 @@ from collections.abc import Mapping
 
 from train_envs.scenarios import Scenario
 from train_envs.simulation import ClosedLoop
+from train_envs.simulation.supervision import overrun_m
 
 #: the reward's objectives, in the order of the weighted sum and of ``info["objectives"]``
 OBJECTIVES = ("tracking", "jerk", "energy", "violation", "stop", "punctuality")
@@ -35,8 +49,11 @@ DEFAULT_WEIGHTS: dict[str, float] = {
     "punctuality": 1.0,
 }
 
-#: the recorded columns a step's costs read
-STEP_COLUMNS = ("v_mps", "a_mps2", "v_ref_mps", "v_limit_mps", "saturated")
+#: the recorded columns a step's costs read (and ``coupler_excess`` on multi-car runs)
+STEP_COLUMNS = ("v_mps", "a_mps2", "v_ref_mps", "v_limit_mps", "saturated", "atp_brake")
+
+#: the components of the safety cost ``info["cost"]``, in order
+COST_COMPONENTS = ("overspeed", "atp", "coupler", "overrun")
 
 
 class TuningReward:
@@ -60,6 +77,12 @@ class TuningReward:
         self._eta_t, self._eta_r = tr.traction_efficiency, tr.regen_efficiency
         self._a_prev = loop.plant.accel
         self._energy_prev = 0.0
+        self._window = scenario.stop_window()
+        self._coupled = loop.plant.n > 1
+        self._names = STEP_COLUMNS + (("coupler_excess",) if self._coupled else ())
+        self._overrun = overrun_m(loop.plant.s, self._s_stop, self._window)
+        #: the safety cost components of the last step (see the module docstring)
+        self.safety: dict[str, float] = dict.fromkeys(COST_COMPONENTS, 0.0)
 
     def costs(self, k0: int, final: bool) -> dict[str, float]:
         """The costs of the control steps ``k0 ..`` ``loop.k − 1``; ``final``: the
@@ -68,7 +91,7 @@ class TuningReward:
         dt = self._dt
         k1 = loop.k
         j0 = k0 - 1 if k0 > 0 else 0  # one row more: the previous step's last row
-        rows = loop.columns(j0, k1, STEP_COLUMNS)
+        rows = loop.columns(j0, k1, self._names)
         i0 = k0 - j0
         # a handful of rows: Python floats (see docs/design/envs.md)
         v = rows["v_mps"].tolist()[i0:]
@@ -87,6 +110,7 @@ class TuningReward:
         jerk *= dt
         self._a_prev = prev
         lim, sat = rows["v_limit_mps"].tolist()[i0:], rows["saturated"].tolist()[i0:]
+        over = 0.0
         if any(sat) or not all(x - y <= 0.0 for x, y in zip(v, lim, strict=True)):
             # overspeed (NaN counts) plus saturated steps
             d = [x - y for x, y in zip(v, lim, strict=True)]
@@ -95,6 +119,10 @@ class TuningReward:
         else:  # the usual case, no overspeed, no saturation (NaN takes the branch above)
             violation = 0.0
         p = loop.plant
+        safety = self._safety(rows, i0, over * dt, p.s)
+        extra = safety["atp"] + safety["coupler"] + safety["overrun"]
+        if extra:
+            violation += extra
         e_now = (p.work_traction_J / self._eta_t - self._eta_r * p.work_brake_J) / 3.6e6
         energy = e_now - self._energy_prev
         self._energy_prev = e_now
@@ -112,6 +140,26 @@ class TuningReward:
             "stop": stop,
             "punctuality": punctuality,
         }
+
+    def _safety(
+        self, rows: Mapping[str, object], i0: int, overspeed: float, s_now: float
+    ) -> dict[str, float]:
+        """The safety cost components of the step (stored in :attr:`safety`)."""
+        dt = self._dt
+        atp = sum(rows["atp_brake"].tolist()[i0:]) * dt  # type: ignore[attr-defined]
+        coupler = 0.0
+        if self._coupled:
+            coupler = sum(rows["coupler_excess"].tolist()[i0:]) * dt  # type: ignore[attr-defined]
+        now = overrun_m(s_now, self._s_stop, self._window)
+        overrun = now - self._overrun if now > self._overrun else 0.0
+        self._overrun = max(self._overrun, now)
+        self.safety = {"overspeed": overspeed, "atp": atp, "coupler": coupler, "overrun": overrun}
+        return self.safety
+
+    def cost(self) -> float:
+        """The safety cost of the last step: the sum of :attr:`safety` (≥ 0)."""
+        c = self.safety
+        return c["overspeed"] + c["atp"] + c["coupler"] + c["overrun"]
 
     def reward(self, costs: Mapping[str, float]) -> float:
         """``−Σ_i w_i c_i`` over :data:`OBJECTIVES`, summed in that order."""

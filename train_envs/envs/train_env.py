@@ -19,6 +19,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.error import ResetNeeded
 
 from train_envs.controllers import make_controller
 from train_envs.controllers.base import Controller, TunableParam
@@ -79,18 +80,30 @@ class TrainTuningEnv(gym.Env):
     ## Episode End
 
     Terminated: the runner's termination (the train stopped after moving, or overran
-    the stop by the scenario's ``overrun_m``; cruise runs: ``t ≥ t_max``). Truncated:
-    the runner's truncation (``t_max`` or its step budget) or ``episode.max_steps`` env
-    steps.
+    the stop by the scenario's ``overrun_m``; cruise runs: ``t ≥ t_max``; with
+    ``supervision.end_on_violation``: the first safety violation). Truncated: the
+    runner's truncation (``t_max`` or its step budget) or ``episode.max_steps`` env
+    steps. ``step()`` before ``reset()`` or after the end raises ``ResetNeeded``.
+
+    ## Supervision and cost
+
+    The runner's ATP brakes whenever the speed exceeds the limit by
+    ``supervision.margin_mps`` (:mod:`train_envs.simulation.supervision`). Every step
+    reports ``info["cost"]`` (Safety-Gymnasium convention: a float ≥ 0, 0 on a safe
+    step) and its components ``info["cost_components"]`` (``overspeed``, ``atp``,
+    ``coupler``, ``overrun``; definitions in :mod:`train_envs.envs.reward`); the
+    ``violation`` objective contains them.
 
     ## Information
 
     ``reset``: ``scenario`` (name), ``params`` (the parameters in force). ``step``:
     ``action_clipped`` (components clipped this step), ``action_clipped_total``,
-    ``params``, ``objectives`` (every cost ``c_i`` of the step), the controller's
-    ``fallback`` / ``slack_max`` / ``iterations`` where it reports them, and on the last
-    step ``episode_metrics`` (:func:`train_envs.metrics.episode_metrics`). No wall-clock
-    timings: the same seed gives the same infos.
+    ``params``, ``objectives`` (every cost ``c_i`` of the step), ``cost`` and
+    ``cost_components`` (the safety cost), the controller's ``fallback`` /
+    ``slack_max`` / ``iterations`` where it reports them, and on the last step
+    ``episode_metrics`` (:func:`train_envs.metrics.episode_metrics`) and, when a safety
+    violation ended it, ``safety_violation`` (what it was). No wall-clock timings: the
+    same seed gives the same infos.
 
     ## Arguments
 
@@ -143,7 +156,7 @@ class TrainTuningEnv(gym.Env):
         self.scenario = self._initial_scenario()
         self._scenario0 = self.scenario  # the controller is built for this one
         self.controller: Controller = self._make_controller()
-        self.loop = ClosedLoop(self.scenario, self.controller)
+        self.loop = ClosedLoop(self.scenario, self.controller, st.episode.supervisor())
 
         self.action_type = TuningAction(self.controller, st.action, st.controller.name)
         self.observation_type = TuningObservation(
@@ -157,10 +170,14 @@ class TrainTuningEnv(gym.Env):
         self._n_ctrl = st.episode.decision_interval
         self._max_steps = st.episode.max_steps
         self._fig = None
+        self._over: str | None = "step() called before reset()"
 
     def _make_controller(self) -> Controller:
         c = self.settings.controller
-        return make_controller(c.name, self._scenario0, **c.params)
+        try:
+            return make_controller(c.name, self._scenario0, **c.params)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"config controller ({c.name}, params {c.params}): {exc}") from None
 
     def default_params(self) -> dict[str, float]:
         """The controller parameters every episode starts from (defaults + config's
@@ -185,7 +202,7 @@ class TrainTuningEnv(gym.Env):
         if not self.action_type.params_changed or not self.controller.keeps_parameter_state:
             return False
         self.controller = self._make_controller()
-        self.loop = ClosedLoop(self._scenario0, self.controller)
+        self.loop = ClosedLoop(self._scenario0, self.controller, self.settings.episode.supervisor())
         self.action_type.bind(self.controller)
         return True
 
@@ -195,10 +212,16 @@ class TrainTuningEnv(gym.Env):
         over = dict(cfg.overrides)
         if cfg.disturbance:
             base = sc.disturbance.__dict__ | cfg.disturbance
-            over["disturbance"] = DisturbanceSpec(
-                **{k: tuple(v) if isinstance(v, list) else v for k, v in base.items()}
-            )
-        return sc.with_overrides(**over) if over else sc
+            try:
+                over["disturbance"] = DisturbanceSpec(
+                    **{k: tuple(v) if isinstance(v, list) else v for k, v in base.items()}
+                )
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"config scenario.disturbance (disturbance): {exc}") from None
+        try:
+            return sc.with_overrides(**over) if over else sc
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"config scenario.overrides (scenario_overrides): {exc}") from None
 
     def _initial_scenario(self) -> Scenario:
         cfg = self.settings.scenario
@@ -211,6 +234,12 @@ class TrainTuningEnv(gym.Env):
         n_stops = len(track.stops_m)
         sections = rl.get("sections") or [(i, i + 1) for i in range(n_stops - 1)]
         self._sections = [tuple(s) for s in sections]
+        bad = [s for s in self._sections if s[1] >= n_stops]
+        if bad:
+            raise ValueError(
+                f"config scenario.real_line (real_line) sections {bad} name stops beyond the "
+                f"last one ({n_stops - 1}) of track {track.name!r}"
+            )
         return self._section_scenario(self._sections[0])
 
     def _section_scenario(self, sec: tuple[int, int]) -> Scenario:
@@ -247,15 +276,20 @@ class TrainTuningEnv(gym.Env):
         self._reward = self.reward_type.reward
         self._steps = 0
         self._clipped_total = 0
+        self._over = None
         return self._observe(), {"scenario": self.scenario.name, "params": params}
 
     def step(self, action):
+        if self._over is not None:
+            raise ResetNeeded(f"{type(self).__name__}: {self._over}; call reset()")
         with single_thread_blas():  # small matrices: BLAS threads only cost (mpc.blas)
             clipped, params = self._act(action)
             k0 = self._simulate()
         self._clipped_total += clipped
         terminated, truncated = self._episode_end()
         final = terminated or truncated
+        if final:
+            self._over = "the episode is over (terminated or truncated)"
         costs = self._costs(k0, final)
         reward = self._reward(costs)
         info = self._info(clipped, params, costs, final)
@@ -292,7 +326,12 @@ class TrainTuningEnv(gym.Env):
         }
         if final:
             info["episode_metrics"] = self.loop.metrics()
+            if self.loop.safety_end is not None:
+                info["safety_violation"] = self.loop.safety_end
         info["objectives"] = costs
+        rw = self.reward_type
+        info["cost"] = rw.cost()
+        info["cost_components"] = dict(rw.safety)
         last = self.loop.last_info
         for key in INFO_KEYS:
             if key in last:

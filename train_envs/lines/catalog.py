@@ -1,6 +1,7 @@
 """Catalogue of named tracks: the paper lines and every shipped TTOBench track.
 
-``get_track(name)`` returns a cached, immutable :class:`~train_envs.lines.track.Track`;
+``get_track(name)`` returns a cached, immutable :class:`~train_envs.lines.track.Track`
+(``name`` may also be the path of a user's TTOBench-format JSON file);
 ``list_tracks()`` lists the valid names. ``DEFAULT_TRAIN_FOR_TRACK`` names the train
 (see :func:`train_envs.trains.get_train`) that a run on each track uses unless told
 otherwise: the paper's own train for a paper line, and for TTOBench the train that
@@ -10,6 +11,7 @@ Swedish line -> KISS, synthetic ``00_*`` lines -> the TTOBench locomotive).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from functools import cache
 from importlib import resources
@@ -17,7 +19,7 @@ from importlib.resources.abc import Traversable
 
 from train_envs.lines import track
 from train_envs.lines.track import Track
-from train_envs.validation import check_choice
+from train_envs.validation import check_choice, is_json_path
 
 #: Paper lines, in paper order: name -> constructor.
 PAPER_TRACKS: dict[str, Callable[[], Track]] = {
@@ -79,11 +81,18 @@ DEFAULT_TRAIN_FOR_TRACK: dict[str, str] = {name: _default_train(name) for name i
 
 
 @cache
-def get_track(name: str) -> Track:
-    """Return the catalogue track ``name`` (cached; the object is immutable).
+def get_track(name: str | os.PathLike[str]) -> Track:
+    """Return the catalogue track ``name`` (cached; the object is immutable), or the
+    track of a user's TTOBench-format JSON file when ``name`` is a path (ends in
+    ``.json`` or holds a directory separator).
 
-    Raises ``ValueError`` listing the valid names for an unknown ``name``.
+    Raises ``ValueError`` listing the valid names for an unknown ``name``, and one
+    naming the file for an unreadable or invalid file.
     """
+    if is_json_path(name):
+        return Track.from_ttobench(os.fspath(name))
+    if not isinstance(name, str):
+        raise ValueError(f"track must be a catalogue name or a JSON path, got {name!r}")
     if name in PAPER_TRACKS:
         return PAPER_TRACKS[name]()
     files = _ttobench_files()

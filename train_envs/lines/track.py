@@ -498,15 +498,20 @@ class Track:
         """Build a track from a TTOBench track JSON file (path) or its parsed dictionary.
 
         Speed limits are converted from km/h to m/s; ``"infinity"`` radii become ``inf``.
+        Values outside :data:`TTOBENCH_TRACK_BOUNDS` are refused as unit or data errors;
+        every error from a file names the file.
         """
         if isinstance(path_or_dict, Mapping):
-            data: Mapping[str, Any] = path_or_dict
-        elif hasattr(path_or_dict, "read_text") and not isinstance(path_or_dict, str | bytes):
-            data = json.loads(path_or_dict.read_text())  # type: ignore[union-attr]
-        else:
-            with open(path_or_dict, encoding="utf-8") as fh:
-                data = json.load(fh)
-        return _track_from_ttobench_dict(data)
+            return _track_from_ttobench_dict(path_or_dict)
+        try:
+            if hasattr(path_or_dict, "read_text") and not isinstance(path_or_dict, str | bytes):
+                data = json.loads(path_or_dict.read_text())  # type: ignore[union-attr]
+            else:
+                with open(path_or_dict, encoding="utf-8") as fh:
+                    data = json.load(fh)
+            return _track_from_ttobench_dict(data)
+        except (OSError, ValueError) as exc:  # JSONDecodeError is a ValueError
+            raise ValueError(f"TTOBench track file {str(path_or_dict)!r}: {exc}") from None
 
     def to_dataframe(self) -> pd.DataFrame:
         """Summary table: one row per homogeneous piece between consecutive breakpoints.
@@ -545,6 +550,10 @@ class Track:
 _POSITION_UNITS = {"m": 1.0, "km": 1000.0}
 _VELOCITY_UNITS = {"km/h": KMH, "m/s": 1.0}
 
+#: plausibility bounds of a TTOBench track (SI): line length [m] (the longest railway
+#: line is 9,300 km), speed limit [m/s] (600 km/h) and the smallest curve radius [m]
+TTOBENCH_TRACK_BOUNDS = {"length_m": 1e7, "speed_limit_mps": 600 * KMH, "radius_m": 10.0}
+
 
 def _unit_factor(
     units: Mapping[str, Any], key: str, table: Mapping[str, float], what: str
@@ -564,6 +573,8 @@ def _rows(data: Mapping[str, Any], what: str, width: int) -> list[Sequence[Any]]
     if not isinstance(entry, Mapping) or "values" not in entry:
         raise ValueError(f"TTOBench track field {what!r} must be an object with 'values'")
     rows = entry["values"]
+    if not isinstance(rows, Sequence) or isinstance(rows, str):
+        raise ValueError(f"TTOBench track field {what!r}: 'values' must be a list of rows")
     for i, row in enumerate(rows):
         if not isinstance(row, Sequence) or len(row) != width:
             raise ValueError(
@@ -579,9 +590,20 @@ def _num(x: Any, what: str) -> float:
         raise ValueError(f"TTOBench track field {what!r}: {x!r} is not a number") from exc
 
 
+def _units(data: Mapping[str, Any], what: str) -> Mapping[str, Any]:
+    """The ``units`` mapping of section ``what`` (empty if it gives none)."""
+    entry = data.get(what, {})
+    units = entry.get("units", {}) if isinstance(entry, Mapping) else None
+    if not isinstance(units, Mapping):
+        raise ValueError(f"TTOBench track field {what!r} must be an object with 'units'")
+    return units
+
+
 def _track_from_ttobench_dict(data: Mapping[str, Any]) -> Track:
+    if not isinstance(data, Mapping):
+        raise ValueError(f"a TTOBench track must be a JSON object, got {type(data).__name__}")
     meta = data.get("metadata", {})
-    name = str(meta.get("id", "ttobench_track"))
+    name = str(meta.get("id", "ttobench_track")) if isinstance(meta, Mapping) else "ttobench"
 
     stops_entry = data.get("stops")
     if not isinstance(stops_entry, Mapping) or "values" not in stops_entry:
@@ -589,9 +611,16 @@ def _track_from_ttobench_dict(data: Mapping[str, Any]) -> Track:
     stop_factor = _unit_factor(
         {"position": stops_entry.get("unit", "m")}, "position", _POSITION_UNITS, "stops"
     )
+    if not isinstance(stops_entry["values"], Sequence) or isinstance(stops_entry["values"], str):
+        raise ValueError("TTOBench track field 'stops': 'values' must be a list of positions")
     stops = [_num(x, "stops") * stop_factor for x in stops_entry["values"]]
+    if stops and not abs(stops[-1]) <= TTOBENCH_TRACK_BOUNDS["length_m"]:
+        raise ValueError(
+            f"TTOBench track field 'stops': a line of {stops[-1] / 1e3:g} km is implausible; "
+            f"allowed up to {TTOBENCH_TRACK_BOUNDS['length_m'] / 1e3:g} km (check the unit)"
+        )
 
-    sl_units = data.get("speed limits", {}).get("units", {})
+    sl_units = _units(data, "speed limits")
     sl_pf = _unit_factor(sl_units, "position", _POSITION_UNITS, "speed limits")
     sl_vf = _unit_factor(sl_units, "velocity", _VELOCITY_UNITS, "speed limits")
     sl = _rows(data, "speed limits", 2)
@@ -599,7 +628,7 @@ def _track_from_ttobench_dict(data: Mapping[str, Any]) -> Track:
     gr_pos: list[float] = []
     gr_val: list[float] = []
     if "gradients" in data:
-        g_units = data["gradients"].get("units", {})
+        g_units = _units(data, "gradients")
         g_pf = _unit_factor(g_units, "position", _POSITION_UNITS, "gradients")
         slope = g_units.get("slope", "permil")
         if slope != "permil":
@@ -615,27 +644,42 @@ def _track_from_ttobench_dict(data: Mapping[str, Any]) -> Track:
     r0: list[float] = []
     r1: list[float] = []
     if "curvatures" in data:
-        c_units = data["curvatures"].get("units", {})
+        c_units = _units(data, "curvatures")
         c_pf = _unit_factor(c_units, "position", _POSITION_UNITS, "curvatures")
-        for key in ("radius at start", "radius at end"):
-            _unit_factor(c_units, key, _POSITION_UNITS, "curvatures")
-        rf = _POSITION_UNITS[c_units.get("radius at start", "m")]
-        for row in _rows(data, "curvatures", 3):
+        rf0 = _unit_factor(c_units, "radius at start", _POSITION_UNITS, "curvatures")
+        rf1 = _unit_factor(c_units, "radius at end", _POSITION_UNITS, "curvatures")
+        r_min = TTOBENCH_TRACK_BOUNDS["radius_m"]
+        for i, row in enumerate(_rows(data, "curvatures", 3)):
             cv_pos.append(_num(row[0], "curvatures") * c_pf)
-            r0.append(_num(row[1], "curvatures") * rf)
-            r1.append(_num(row[2], "curvatures") * rf)
+            r0.append(_num(row[1], "curvatures") * rf0)
+            r1.append(_num(row[2], "curvatures") * rf1)
+            if not (abs(r0[-1]) >= r_min and abs(r1[-1]) >= r_min):
+                raise ValueError(
+                    f"TTOBench track field 'curvatures': row {i} has a radius of "
+                    f"{min(abs(r0[-1]), abs(r1[-1])):g} m; allowed |R| >= {r_min:g} m "
+                    "(check the unit)"
+                )
 
+    meta = meta if isinstance(meta, Mapping) else {}
     source = (
         f"TTOBench track {name} ({meta.get('library version', 'TTOBench')}, "
         f"{meta.get('license', 'BSD 2-Clause License')}, created by "
         f"{meta.get('created by', 'unknown')}); Kouzoupis, Pendharkar, Corman, "
         "Operations Research Forum 4:67 (2023)"
     )
+    limits = np.array([_num(r[1], "speed limits") * sl_vf for r in sl])
+    v_max = TTOBENCH_TRACK_BOUNDS["speed_limit_mps"]
+    if limits.size and not np.all(np.abs(limits) <= v_max):
+        i = int(np.argmax(~(np.abs(limits) <= v_max)))
+        raise ValueError(
+            f"TTOBench track field 'speed limits': row {i} limits {limits[i] / KMH:g} km/h; "
+            f"allowed up to {v_max / KMH:g} km/h (check the unit)"
+        )
     return Track(
         name=name,
         stops_m=np.array(stops, float),
         speed_limit_positions_m=np.array([_num(r[0], "speed limits") * sl_pf for r in sl]),
-        speed_limits_mps=np.array([_num(r[1], "speed limits") * sl_vf for r in sl]),
+        speed_limits_mps=limits,
         gradient_positions_m=np.array(gr_pos, float),
         gradients_permil=np.array(gr_val, float),
         curve_positions_m=np.array(cv_pos, float),

@@ -22,6 +22,7 @@ import pandas as pd
 from train_envs.controllers.base import Controller
 from train_envs.scenarios import Scenario
 from train_envs.simulation.loop import ClosedLoop, run_to_end
+from train_envs.simulation.supervision import Supervision
 
 __all__ = [
     "EpisodeSource",
@@ -85,7 +86,8 @@ class Episodes:
     Here the parameters are set on the controller before the reset, and a controller
     given by name is built anew for each episode, as :func:`simulate` does. ``ids``
     and ``extra`` are constant columns of every row; ``max_steps`` caps the control
-    steps of an episode (``None``: the scenario's own end).
+    steps of an episode (``None``: the scenario's own end); ``supervision``: the ATP
+    settings (default: ATP on).
     """
 
     def __init__(
@@ -96,6 +98,7 @@ class Episodes:
         ids: Mapping[str, Any] | None = None,
         extra: Mapping[str, Any] | None = None,
         max_steps: int | None = None,
+        supervision: Supervision | None = None,
     ) -> None:
         from train_envs.scenarios import get_scenario
 
@@ -104,6 +107,7 @@ class Episodes:
         self.ids = dict(ids or {})
         self.extra = dict(extra or {})
         self.max_steps = max_steps
+        self.supervision = supervision
 
     def start(self, seed: int, params: Mapping[str, float] | None) -> ClosedLoop:
         from train_envs.controllers import make_controller
@@ -113,7 +117,7 @@ class Episodes:
             ctrl = make_controller(ctrl, self.scenario)
         if params:
             ctrl.set_params(**params)
-        loop = ClosedLoop(self.scenario, ctrl)
+        loop = ClosedLoop(self.scenario, ctrl, self.supervision)
         loop.reset(seed=seed)
         return loop
 

@@ -5,7 +5,8 @@ episode → DataFrame + metrics), :func:`train_envs.simulation.evaluation.evalua
 (parameters over seeds → metrics table), and the Gymnasium envs (one env step = a few
 control steps, with parameters changed in between). It records one row per control
 period into preallocated arrays, so a failure part-way loses nothing:
-:class:`SimulationError` carries the partial result.
+:class:`SimulationError` carries the partial result. Every run is supervised
+(:mod:`.supervision`: ATP brake above the limit plus a margin, safety columns).
 """
 
 from __future__ import annotations
@@ -23,6 +24,16 @@ from train_envs.controllers.base import Controller, Observation
 from train_envs.metrics import episode_metrics
 from train_envs.plants.multi_car import _np_sum
 from train_envs.scenarios import Scenario, build_plant
+from train_envs.simulation.supervision import (
+    ATP,
+    Supervision,
+    coupler_excess,
+    overrun_m,
+    permitted_speed_mps,
+)
+
+#: the runner's safety columns (see :mod:`.supervision`; the last one: multi-car runs)
+SAFETY_COLUMNS = ("atp_brake", "overspeed_mps", "overrun_m", "coupler_excess")
 
 #: controller info keys copied into the DataFrame when present (numeric only)
 INFO_COLUMNS = (
@@ -78,9 +89,15 @@ class ClosedLoop:
         result = loop.result()
     """
 
-    def __init__(self, scenario: Scenario, controller: Controller) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        controller: Controller,
+        supervision: Supervision | None = None,
+    ) -> None:
         self.scenario = scenario
         self.controller = controller
+        self.supervision = Supervision() if supervision is None else supervision
         self.dt = scenario.dt_ctrl_s
         self.n_max = int(math.ceil(scenario.t_max_s / self.dt)) + 2
         self.plant = None
@@ -107,6 +124,13 @@ class ClosedLoop:
         self.done = False
         self.terminated = False
         self.truncated = False
+        self.atp = ATP(self.supervision, sc)
+        self._window = sc.stop_window()
+        cp = sc.train.coupler
+        self._coupler_lim = (cp.max_force_N, cp.max_deformation_m)
+        self._unsafe = False
+        #: what ended the episode under ``end_on_violation`` (``None``: no violation)
+        self.safety_end: str | None = None
         self._alloc()
         # (t, s, v, a) of the plant state it was read from (see _lead)
         self._lead_z: np.ndarray | None = None
@@ -135,6 +159,7 @@ class ClosedLoop:
         if nc > 1:
             names += [f"u{i + 1}_cmd_N" for i in range(nc)]
             names += ["coupler_force_max_N", "coupler_def_max_m"]
+        names += list(SAFETY_COLUMNS) if nc > 1 else list(SAFETY_COLUMNS[:3])
         # one row per control period, in column order; the rows are appended to a list
         # (cheap per step) and moved into the preallocated table when columns are read.
         # Column-major, so that every column is a contiguous array.
@@ -197,8 +222,12 @@ class ClosedLoop:
         u = np.asarray(u, dtype=float).reshape(-1)
         if not (math.isfinite(u[0]) if u.size == 1 else all(map(math.isfinite, u.tolist()))):
             raise ValueError(f"controller {self.controller.name} returned a non-finite command {u}")
+        limit = permitted_speed_mps(self.scenario, state[1])
+        brake = self.atp.command(state[2], limit)
+        if brake is not None:  # the ATP overrides the command
+            u = np.array([brake]) if self.ctx.n_inputs == 1 else brake * self.plant.share
         self.last_info = info
-        self._record(state, u_N, u, info)
+        self._record(state, u_N, u, info, limit, brake is not None)
         self.plant.step(u if u.size > 1 else u[0], self.dt)
         self.u_prev = u
         self.k += 1
@@ -211,8 +240,11 @@ class ClosedLoop:
         u_N: float | None,
         u: np.ndarray,
         info: Mapping[str, Any],
+        limit: float,
+        atp: bool,
     ) -> None:
-        """Append the row of control step ``k``: the observed state, references, command."""
+        """Append the row of control step ``k``: the observed state, references, command,
+        the safety columns (``limit``: the permitted speed, ``atp``: the ATP brakes)."""
         k, sc, p = self.k, self.scenario, self.plant
         t, s, v, a = state
         ref = sc.reference
@@ -227,7 +259,7 @@ class ClosedLoop:
             a,
             ref.v_ref(t, s),
             ref.s_ref(t),
-            sc.speed_limit_at(s),
+            limit,
             sc.gradient_at(s),
             _np_sum(ul),  # float(np.sum(u))
             u_N,
@@ -235,9 +267,18 @@ class ClosedLoop:
             p.work_brake_J,
             float(p.saturated),
         )
+        d = v - limit
+        over = d if d > 0.0 else 0.0
+        safety = (float(atp), over, overrun_m(s, sc.s_stop_m, self._window))
         if n > 1:
             per_car = ul if u.size == n else (u.sum() * p.share).tolist()
-            row = (*row, *per_car, *p._coupler_extremes())
+            f, q = p._coupler_extremes()
+            exc = coupler_excess(f, q, *self._coupler_lim)
+            row = (*row, *per_car, f, q, *safety, exc)
+        else:
+            exc = 0.0
+            row = (*row, *safety)
+        self._unsafe = atp or exc > 0.0 or d > self.supervision.margin_mps
         if self._rows_k0 + len(self._rows) != k:
             # a plant step failed after this row was recorded: row k is recorded again
             self._flush()
@@ -263,6 +304,11 @@ class ClosedLoop:
                 self.terminated = True
         elif t >= sc.t_max_s - 1e-9:
             self.terminated = True
+        if self.supervision.end_on_violation and not self.terminated:
+            if self._unsafe:
+                self.terminated, self.safety_end = True, "overspeed or coupler beyond limits"
+            elif overrun_m(s, sc.s_stop_m, self._window) > 0.0:
+                self.terminated, self.safety_end = True, "overrun beyond the stopping window"
         if not self.terminated and (t >= sc.t_max_s - 1e-9 or self.k >= self.n_max - 1):
             self.truncated = True
         self.done = self.terminated or self.truncated
@@ -295,14 +341,20 @@ class ClosedLoop:
             a_mps2=obs.a_mps2,
             v_ref_mps=sc.reference.v_ref(obs.t_s, obs.s_m),
             s_ref_m=sc.reference.s_ref(obs.t_s),
-            v_limit_mps=sc.speed_limit_at(obs.s_m),
+            v_limit_mps=permitted_speed_mps(sc, obs.s_m),
             gradient_permil=sc.gradient_at(obs.s_m),
             u_cmd_N=float(np.sum(self.u_prev)),
             u_N=float(np.sum(obs.forces_N)),
             work_traction_J=self.plant.work_traction_J,
             work_brake_J=self.plant.work_brake_J,
             saturated=0.0,
+            atp_brake=0.0,
+            overspeed_mps=max(obs.v_mps - permitted_speed_mps(sc, obs.s_m), 0.0),
+            overrun_m=overrun_m(obs.s_m, sc.s_stop_m, self._window),
         )
+        if self.plant.n > 1:
+            f, q = self.plant._coupler_extremes()
+            last["coupler_excess"] = coupler_excess(f, q, *self._coupler_lim)
         out = {}
         for name, arr in cols.items():
             a = np.empty(k + 1)
@@ -354,10 +406,12 @@ def simulate(
     *,
     seed: int | None = 0,
     params: Mapping[str, float] | None = None,
+    supervision: Supervision | None = None,
 ) -> SimulationResult:
     """Run one closed-loop episode and return its DataFrame and metrics.
 
-    ``scenario`` and ``controller`` may be names (see ``train-envs list``). If the run
+    ``scenario`` and ``controller`` may be names (see ``train-envs list``);
+    ``supervision``: the ATP settings (default :class:`Supervision`, ATP on). If the run
     fails part-way, :class:`SimulationError` is raised with the partial result attached.
     """
     from train_envs.controllers import make_controller
@@ -367,7 +421,7 @@ def simulate(
     ctrl = make_controller(controller, sc) if isinstance(controller, str) else controller
     if params:
         ctrl.set_params(**params)
-    loop = ClosedLoop(sc, ctrl)
+    loop = ClosedLoop(sc, ctrl, supervision)
     loop.reset(seed=seed)
     run_to_end(loop)
     return loop.result()
