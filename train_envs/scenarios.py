@@ -433,7 +433,7 @@ def paper000_single_section() -> Scenario:
     """Paper 000 single-section scenario (6-car D-type metro, per-car forces, §IV-A).
 
     The paper's line data are not published: the section is our assumed urban section
-    (see :func:`train_envs.lines.track.paper000_section_track`); the reference meets a
+    (see :func:`train_envs.lines.paper_lines.paper000_section_track`); the reference meets a
     timetable 10 % above the minimum running time of a train with 75 % of the traction
     envelope (see :func:`reference_train`), which leaves the controller the traction
     margin it needs, also against paper 000's 0.2 m/s² wind. Control period 0.2 s (the paper does

@@ -17,18 +17,18 @@ from functools import cache
 from importlib import resources
 from importlib.resources.abc import Traversable
 
-from train_envs.lines import track
+from train_envs.lines import paper_lines
 from train_envs.lines.track import Track
 from train_envs.validation import check_choice, is_json_path
 
 #: Paper lines, in paper order: name -> constructor.
 PAPER_TRACKS: dict[str, Callable[[], Track]] = {
-    "paper000_section": track.paper000_section_track,
-    "paper000_multi_section": track.paper000_multi_section_track,
-    "paper001": track.paper001_track,
-    "paper002": track.paper002_track,
-    "paper003": track.paper003_track,
-    "paper004": track.paper004_track,
+    "paper000_section": paper_lines.paper000_section_track,
+    "paper000_multi_section": paper_lines.paper000_multi_section_track,
+    "paper001": paper_lines.paper001_track,
+    "paper002": paper_lines.paper002_track,
+    "paper003": paper_lines.paper003_track,
+    "paper004": paper_lines.paper004_track,
 }
 
 
