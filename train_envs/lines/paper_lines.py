@@ -9,17 +9,10 @@ import math
 
 import numpy as np
 
-from train_envs.lines.track import Track
+from train_envs.lines.track import PAPER_LINES, Track
 from train_envs.trains import KMH
 
-__all__ = [
-    "paper001_track",
-    "paper000_section_track",
-    "paper000_multi_section_track",
-    "paper002_track",
-    "paper003_track",
-    "paper004_track",
-]
+__all__ = list(PAPER_LINES)
 
 
 def paper001_track() -> Track:
