@@ -87,6 +87,20 @@ def _clean_problem() -> PymooTaskProblem:
     return PymooTaskProblem(get_problem("zdt1", n_var=4), name="flaky-zdt1")
 
 
+def _clean_run(pop: int, iters: int, seed: int):
+    """The undisturbed serial MOWOA run that a disturbed run must reproduce."""
+    return tune(
+        _clean_problem(),
+        "mowoa",
+        pop=pop,
+        iters=iters,
+        backend="serial",
+        storage=None,
+        study="clean",
+        seed=seed,
+    )
+
+
 def _trials(db: str, study: str):
     from tuners.storage import load_study
 
@@ -375,16 +389,7 @@ def test_worker_exception_is_retried_and_recorded(tmp_path):
         study="flaky",
         seed=2,
     )
-    clean = tune(
-        _clean_problem(),
-        "mowoa",
-        pop=8,
-        iters=3,
-        backend="serial",
-        storage=None,
-        study="clean",
-        seed=2,
-    )
+    clean = _clean_run(pop=8, iters=3, seed=2)
     assert flaky.stats.failed_attempts > 0 and flaky.stats.failed_final == 0
     assert np.array_equal(flaky.pymoo_result.F, clean.pymoo_result.F)
     trials = _trials(db, "flaky")
@@ -421,16 +426,7 @@ def test_process_worker_crash_is_resubmitted(tmp_path):
         study="crash",
         seed=4,
     )
-    clean = tune(
-        _clean_problem(),
-        "mowoa",
-        pop=6,
-        iters=2,
-        backend="serial",
-        storage=None,
-        study="clean",
-        seed=4,
-    )
+    clean = _clean_run(pop=6, iters=2, seed=4)
     # worker deaths are not charged to the tasks in flight: no failed attempt
     assert r.stats.worker_deaths > 0 and r.stats.failed_attempts == r.stats.failed_final == 0
     assert any("process died" in e for e in r.stats.errors)
@@ -457,16 +453,7 @@ def test_dask_backend_local_cluster(tmp_path):
             study="dask",
             seed=6,
         )
-    clean = tune(
-        _clean_problem(),
-        "mowoa",
-        pop=6,
-        iters=2,
-        backend="serial",
-        storage=None,
-        study="clean",
-        seed=6,
-    )
+    clean = _clean_run(pop=6, iters=2, seed=6)
     assert r.stats.failed_attempts > 0 and r.stats.failed_final == 0
     assert np.array_equal(r.pymoo_result.F, clean.pymoo_result.F)
 
