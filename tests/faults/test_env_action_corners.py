@@ -4,9 +4,9 @@ safety violation goes unflagged.
 With ``TRAIN_ENVS_ALL_CORNERS=1``: all ``2^n`` corners (64 sampled where ``n > 6``);
 by default ``SAMPLED`` corners per id (all −1, all +1 and seeded draws), since the
 fuzzy MPC's corners cost seconds each. Each corner runs a short episode (the first
-``STEPS`` env steps); the long runs that reach the stop or diverge later are covered
-by the full-episode cases of ``test_env_supervision.py`` and by
-``scripts/action_corners.py`` (whole episodes, every corner). A violation is
+``STEPS`` env steps); with ``TRAIN_ENVS_CORNER_EPISODES=1`` every corner runs its whole
+episode (the acceptance run: about an hour on 2 cores with every corner of every id;
+``scripts/action_corners.py`` prints the same runs' safety metrics). A violation is
 detected here from the run's own columns, independently of the runner's safety
 columns: a speed beyond the limit plus the ATP margin, a coupler beyond the train's
 limits, a position beyond the stopping window.
@@ -28,6 +28,7 @@ STEPS = 3
 MAX_CORNERS = 64
 SAMPLED = 8
 ALL = os.environ.get("TRAIN_ENVS_ALL_CORNERS") == "1"
+EPISODES = os.environ.get("TRAIN_ENVS_CORNER_EPISODES") == "1"
 
 
 def unsafe(env) -> dict[str, bool]:
@@ -59,7 +60,7 @@ def test_corners_are_all_or_a_sample_with_both_extremes():
 
 @pytest.mark.parametrize("env_id", registered_ids())
 def test_corner_violations_are_flagged(env_id):
-    env = gym.make(env_id, config={"max_episode_steps": STEPS})
+    env = gym.make(env_id, config={} if EPISODES else {"max_episode_steps": STEPS})
     n = env.action_space.shape[0]
     for action in action_corners(n, np.random.default_rng(0), MAX_CORNERS if ALL else SAMPLED):
         env.reset(seed=0)

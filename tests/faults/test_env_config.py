@@ -68,6 +68,15 @@ def test_bad_inputs_raise_one_line_errors_naming_the_field(config, match):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("jerk", [0.0, -1.0, math.nan])
+def test_a_zero_or_invalid_mpc_jerk_limit_is_refused(jerk):
+    # jerk_max = 0 would pin the command at its start value: the train never moves
+    with pytest.raises(ValueError, match=r"jerk_max must") as err:
+        env = gym.make("TrainEnvs/Yizhuang-v0", config={"controller_params": {"jerk_max": jerk}})
+        env.reset(seed=0)
+    assert "\n" not in str(err.value)
+
+
 def test_real_line_sections_beyond_the_last_stop_are_refused_at_make():
     with pytest.raises(ValueError, match=r"real_line.*sections \[\(0, 99\)\]"):
         gym.make("TrainEnvs/Yizhuang-v0", config={"real_line": {"sections": [(0, 99)]}})

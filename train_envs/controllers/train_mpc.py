@@ -55,6 +55,7 @@ from train_envs.mpc.blas import single_thread_blas
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.physics import davis_horner_N, davis_slope
 from train_envs.trains import G
+from train_envs.validation import check_range
 
 __all__ = [
     "MultiCarMPC",
@@ -171,7 +172,8 @@ class PointMassMPC(_TrainMPCBase):
         jerk_max: float = 1.0,
         **options: Any,
     ) -> None:
-        self.jerk_max = float(jerk_max)
+        # a zero rate pins the command at its start value (the train never moves)
+        self.jerk_max = check_range("jerk_max", jerk_max, 0.0, 100.0, low_inclusive=False)
         super().__init__(Np=Np, **options)
 
     # ----------------------------------------------------------------- model

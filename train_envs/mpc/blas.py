@@ -20,24 +20,45 @@ __all__ = ["single_thread_blas"]
 _CONTROLLER: Any = None
 
 
+def _blas_libraries() -> list[Any]:
+    """threadpoolctl's controllers of the BLAS libraries loaded at the first use (cached:
+    building them scans the process's shared libraries, about a millisecond)."""
+    global _CONTROLLER
+    if _CONTROLLER is None:
+        from threadpoolctl import ThreadpoolController
+
+        _CONTROLLER = ThreadpoolController()
+    return list(_CONTROLLER.select(user_api="blas").lib_controllers)
+
+
 class _SingleThreadBLAS:
     """Re-entrant context: the outermost ``with`` sets the limit, the others count (the
-    limit is process-wide, so the count is shared by all threads, under a lock)."""
+    limit is process-wide, so the count is shared by all threads, under a lock).
+
+    The outermost ``with`` reads each library's thread count and sets one thread only
+    where it is above one (a few microseconds, ctypes calls); the exit restores exactly
+    what it changed. threadpoolctl's own ``limit`` would query every library's full
+    description on each entry, which costs about as much as a cheap env step.
+    """
 
     def __init__(self) -> None:
         self._depth = 0
-        self._limit: Any = None
+        self._saved: list[tuple[Any, int]] = []
+        self._libs: list[Any] | None = None
         self._lock = threading.Lock()
 
     def __enter__(self) -> _SingleThreadBLAS:
         with self._lock:
             if self._depth == 0:
-                global _CONTROLLER
-                if _CONTROLLER is None:
-                    from threadpoolctl import ThreadpoolController
-
-                    _CONTROLLER = ThreadpoolController()
-                self._limit = _CONTROLLER.limit(limits=1, user_api="blas")
+                if self._libs is None:
+                    self._libs = _blas_libraries()
+                saved = []
+                for lib in self._libs:
+                    n = lib.get_num_threads()
+                    if n is not None and n > 1:
+                        lib.set_num_threads(1)
+                        saved.append((lib, n))
+                self._saved = saved
             self._depth += 1
         return self
 
@@ -50,8 +71,9 @@ class _SingleThreadBLAS:
         with self._lock:
             self._depth -= 1
             if self._depth == 0:
-                limit, self._limit = self._limit, None
-                limit.restore_original_limits()
+                saved, self._saved = self._saved, []
+                for lib, n in saved:
+                    lib.set_num_threads(n)
 
 
 _SINGLE = _SingleThreadBLAS()
