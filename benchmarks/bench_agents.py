@@ -153,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{r['trivial_steps_per_s']:.0f} | {100 * r['trivial_share']:.0f} % |",
                 flush=True,
             )
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+        print(f"({os.cpu_count()} CPU(s), load average {load:.1f} at the end)")
         return 0
     args.envs = args.envs or list(ENVS)
     rates: dict[tuple[str, str], list[float]] = {}

@@ -23,7 +23,9 @@ reset time included).
 ``--osqp-tail [--steps 300]``: per id, the OSQP solve times of the controller's
 control steps (``solve_time_s`` of its info; the RSMPC sums a trigger's solves) at the
 constant default action and under random actions: steps that ran OSQP, the 99th
-percentile and the maximum over those, and how many took more than 2 ms.
+percentile and the maximum over those, how many took more than 2 ms, and the ADMM
+iterations of those steps (99th percentile, maximum, steps at the iteration limit:
+figures that do not depend on the machine's load) and the fallback commands.
 
 ``--compare OLD NEW [--rounds 5]`` runs the benchmark on two source trees (each a
 directory holding ``train_envs``) in subprocesses, alternating the order every round,
@@ -48,6 +50,7 @@ import numpy as np
 
 import train_envs  # noqa: F401
 from train_envs.envs import params_to_action, registered_ids
+from train_envs.mpc.osqp_backend import osqp_settings_with
 
 #: the clock of every measurement (``--cpu-time``: this process's CPU time)
 _clock = time.perf_counter
@@ -176,34 +179,51 @@ def side_by_side(ids: list[str], steps: int, rounds: int) -> None:
 
 
 def osqp_tail(ids: list[str], steps: int) -> None:
-    """OSQP solve-time tail per id at constant and random actions."""
-    print(f"| env id | action | steps with OSQP | p99 [ms] | max [ms] | > 2 ms |  ({steps} steps)")
-    print("|---|---|---:|---:|---:|---:|")
+    """OSQP solve-time tail per id at constant and random actions.
+
+    Besides OSQP's own solve times (wall clock, so they grow with the machine's load),
+    the ADMM iterations of the same steps (independent of the load): their 99th
+    percentile and maximum, the steps at OSQP's iteration limit (``max_iter``, 4000 by
+    default; a step that needed the rescue cascade counts its iterations in all) and
+    the fallback commands.
+    """
+    max_iter = int(osqp_settings_with(None)["max_iter"])
+    print(
+        f"| env id | action | steps with OSQP | p99 [ms] | max [ms] | > 2 ms | iterations p99 "
+        f"| iterations max | at the limit | fallbacks |  ({steps} steps)"
+    )
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for env_id in ids:
         env = gym.make(env_id)
         ctrl = env.unwrapped.controller
         space = env.action_space
         space.seed(0)
-        times: list[float] = []
+        rows: list[tuple[float, float, float]] = []
         orig = ctrl.compute
 
-        def timed(obs, _orig=orig, _times=times):
+        def timed(obs, _orig=orig, _rows=rows):
             out = _orig(obs)
-            t = float(out[1].get("solve_time_s", 0.0))
+            info = out[1]
+            t = float(info.get("solve_time_s", 0.0))
             if t > 0.0:
-                _times.append(t)
+                _rows.append(
+                    (t, float(info.get("iterations", 0.0)), float(info.get("fallback", 0.0)))
+                )
             return out
 
         ctrl.compute = timed
         acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
         for name, act in acts.items():
-            times.clear()
+            rows.clear()
             _rate(env, act, steps, seed=0)
-            t = np.array(times) * 1e3
+            a = np.array(rows).reshape(-1, 3)
+            t, it = a[:, 0] * 1e3, a[:, 1]
             p99 = float(np.percentile(t, 99)) if t.size else 0.0
+            it99 = float(np.percentile(it, 99)) if it.size else 0.0
             print(
                 f"| {env_id} | {name} | {t.size} | {p99:.2f} | {t.max(initial=0.0):.2f} | "
-                f"{int(np.sum(t > 2.0))} |",
+                f"{int(np.sum(t > 2.0))} | {it99:.0f} | {it.max(initial=0.0):.0f} | "
+                f"{int(np.sum(it >= max_iter))} | {int(np.sum(a[:, 2] > 0))} |",
                 flush=True,
             )
         env.close()

@@ -537,6 +537,26 @@ def test_infeasible_initial_state_gives_bounded_command_and_positive_slack(form)
 
 
 @pytest.mark.parametrize("form", ["condensed", "sparse"])
+def test_primal_infeasibility_verdict_is_final(form):
+    """A QP whose hard rows cannot be met (speed 10, hard bound 1, braking limited by the
+    rate) is proven infeasible by OSQP: the cascade does not continue ADMM from the
+    diverging iterate (the relaxed, polished attempt), it falls back at once."""
+    hard = di_mpc(soft_penalty={"y": np.inf}, form=form)
+    continued = []
+    rescue = hard._backend.rescue
+    hard._backend.rescue = lambda *a, **k: continued.append(1) or rescue(*a, **k)
+    up = np.array([0.5])
+    sol = hard.solve(np.array([0.0, 10.0]), up, np.zeros(2))
+    assert sol.status_val in (3, 4) and sol.fallback
+    assert not continued
+    assert sol.iterations < hard.osqp_settings["max_iter"]  # OSQP's own iterations only
+    assert_in_window(sol.u0, up)
+    # the same QP with soft rows is feasible and solved
+    soft = di_mpc(form=form).solve(np.array([0.0, 10.0]), up, np.zeros(2))
+    assert not soft.fallback and soft.slack_max > 1.0
+
+
+@pytest.mark.parametrize("form", ["condensed", "sparse"])
 def test_rate_limits_never_violated_in_closed_loop(form):
     A, B = double_integrator()
     mpc = di_mpc(form=form)

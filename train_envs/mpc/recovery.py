@@ -3,8 +3,8 @@ r"""Recovery of :class:`~train_envs.mpc.LinearMPC` when OSQP does not converge.
 ADMM usually identifies the active set long before it meets tight tolerances; this is
 typical when soft constraints are violated (their multipliers sit at the penalty
 :math:`\rho` and the QP behaves like a degenerate LP).  On the statuses solved
-inaccurate, primal infeasible and maximum iterations the cascade
-(:meth:`_RecoveryMixin._rescue`) runs:
+inaccurate and maximum iterations the cascade (:meth:`_RecoveryMixin._rescue`) runs
+(after a primal-infeasibility verdict step 2 only, briefly):
 
 1. OSQP continued from the last iterate with tolerance :math:`\max(10^{-4}, 10\epsilon)`
    and OSQP's polishing;
@@ -31,6 +31,11 @@ import numpy as np
 from train_envs.mpc.osqp_backend import _BIG, _RESCUE, _SOLVED, _SOLVED_INACCURATE, _Stats
 from train_envs.mpc.solution import MPCSolution
 
+#: OSQP's statuses primal infeasible and primal infeasible inaccurate
+_PRIMAL_INFEASIBLE = (3, 4)
+#: active-set iterations tried after a primal-infeasibility verdict
+_INFEASIBLE_REFINE = 5
+
 
 class _RecoveryMixin:
     """Rescue, exact refinement, fallback plan and its evaluation."""
@@ -47,6 +52,11 @@ class _RecoveryMixin:
            (``max(1e-4, 10 eps)``) and OSQP's own solution polishing;
         2. if polishing failed: an exact active-set iteration (:meth:`_refine`).
 
+        After a primal-infeasibility verdict only step 2 runs (a few iterations): OSQP
+        stops there with a certificate, and continuing ADMM from the diverging iterate
+        re-derived the verdict after thousands of iterations (RSMPC candidates with
+        tightened hard rows, ``docs/benchmarks.md``).
+
         A verified KKT point is reported as ``"solved (polished)"`` (status 1); an
         unpolished relaxed-tolerance solution as ``"solved inaccurate"`` (status 2).
         """
@@ -54,6 +64,14 @@ class _RecoveryMixin:
         if status_val not in _RESCUE or x is None or not math.isfinite(np.dot(x, x)):
             return x, y, stats
         t0 = time.perf_counter()
+        if status_val in _PRIMAL_INFEASIBLE:
+            # OSQP holds a certificate of infeasibility: continuing ADMM cannot find a
+            # solution; only an exact KKT point (a false verdict) would overturn it
+            ref = self._refine(x, y, _INFEASIBLE_REFINE)
+            t = solve_time + time.perf_counter() - t0
+            if ref is not None:
+                return ref[0], ref[1], (_SOLVED, "solved (polished)", iters, t, ref[2], 1)
+            return x, y, (status_val, status, iters, t, stats[4], stats[5])
         st = self.osqp_settings
         eps = max(1e-4, 10.0 * float(st["eps_abs"]), 10.0 * float(st["eps_rel"]))
         restore = {k: st[k] for k in ("eps_abs", "eps_rel", "polishing")}
