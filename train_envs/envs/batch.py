@@ -2,24 +2,88 @@
 
 :func:`evaluate_env_params_batch` returns, for each parameter vector, the table
 :func:`train_envs.envs.evaluation.evaluate_env_params` gives for it (same columns, same
-rows); :func:`supports_batch` says whether an env id and config has a batched path.
+rows, same order); :func:`supports_batch` says whether an env id and config has the
+batched path. There, every (parameter vector, seed) pair is one member of a
+:class:`~train_envs.simulation.batch.BatchLoop`: the env's reset for the seed gives the
+scenario and the episode seed (its plant draw), the env's controller validates and
+completes the parameters, and the members run together (the batched controllers of
+:data:`BATCHED`). Elsewhere it runs the single evaluations one after the other.
+Tolerance and design: ``docs/design/lockstep.md``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+import gymnasium as gym
+import numpy as np
 import pandas as pd
 
-from train_envs.envs.evaluation import evaluate_env_params
+from train_envs.controllers.base import Controller
+from train_envs.controllers.dmc.batch import BatchDMC, batchable_dmc
+from train_envs.controllers.dmc.controller import DMCController
+from train_envs.controllers.params import ParamSpace
+from train_envs.envs.evaluation import EnvCache, _env, _env_defaults, evaluate_env_params
+from train_envs.plants.batch import batchable
+from train_envs.scenarios import build_plant
+from train_envs.simulation import episode_row, metrics_table
+from train_envs.simulation.batch import BatchLoop
 
-__all__ = ["evaluate_env_params_batch", "supports_batch"]
+__all__ = ["BATCHED", "evaluate_env_params_batch", "supports_batch"]
+
+
+def _dmc(env: Any, params: Sequence[Mapping[str, float]], pool: Callable[[int], Controller]):
+    return BatchDMC(env.controller, params, pool)
+
+
+#: controller class -> (whether a reset instance batches, the batched controller's builder
+#: ``(env, member params, QP pool) -> BatchController``)
+BATCHED: dict[type, tuple[Callable[[Any], bool], Callable[..., Any]]] = {
+    DMCController: (batchable_dmc, _dmc),
+}
+
+#: per env key: the controllers members solve their QPs on (built on first use)
+_POOLS: dict[tuple[str, str], list[Controller]] = {}
+
+
+def _supported(env: gym.Env) -> bool:
+    base = env.unwrapped
+    entry = BATCHED.get(type(base.controller))
+    loop = base.loop
+    return (
+        entry is not None
+        and loop.plant is not None
+        and entry[0](base.controller)
+        and batchable(loop.plant)
+        and base.scenario.control_context().n_inputs == 1
+        and not loop.supervision.end_on_violation
+    )
 
 
 def supports_batch(env_id: str, config: Mapping[str, Any] | None = None) -> bool:
     """Whether ``env_id`` with ``config`` has a batched (lockstep) evaluation."""
-    return False
+    key = EnvCache.key(env_id, config)
+    if key is None:
+        return False
+    try:
+        with _env(env_id, config, True) as env:
+            if env.unwrapped.loop.plant is None:
+                env.reset(seed=0)
+            return _supported(env)
+    except gym.error.Error:
+        return False
+
+
+def _pool(key: tuple[str, str], base: Any) -> Callable[[int], Controller]:
+    ctrls = _POOLS.setdefault(key, [])
+
+    def get(b: int) -> Controller:
+        while len(ctrls) <= b:
+            ctrls.append(base._make_controller())
+        return ctrls[b]
+
+    return get
 
 
 def evaluate_env_params_batch(
@@ -31,11 +95,42 @@ def evaluate_env_params_batch(
     """One metrics table per parameter vector, each over ``seeds``.
 
     Element ``i`` equals ``evaluate_env_params(env_id, params_list[i], seeds=seeds,
-    config=config, label="tuner", reuse_env=True)``.
+    config=config, label="tuner", reuse_env=True)``: the same columns and rows, values
+    to ~1e-12 relative (``docs/design/lockstep.md``). A failing member (a non-finite
+    command, an invalid parameter) raises for the whole population.
     """
-    return [
-        evaluate_env_params(
-            env_id, params, seeds=seeds, config=config, label="tuner", reuse_env=True
-        )
-        for params in params_list
-    ]
+    seeds = [int(s) for s in seeds]
+    params_list = [dict(p or {}) for p in params_list]
+    if not params_list:
+        return []
+    key = EnvCache.key(env_id, config)
+    if key is None or not supports_batch(env_id, config):
+        return [
+            evaluate_env_params(
+                env_id, p, seeds=seeds, config=config, label="tuner", reuse_env=True
+            )
+            for p in params_list
+        ]
+    with _env(env_id, config, True) as env:
+        base = env.unwrapped
+        space = ParamSpace(base.param_specs)
+        defaults = _env_defaults(base)
+        cap = base.config["max_episode_steps"]
+        max_steps = int(cap) * int(base.config["decision_interval"]) if cap else None
+        ids = {"env": env_id, "driver": "tuner"}
+        rows: list[list[dict[str, Any] | None]] = [[None] * len(seeds) for _ in params_list]
+        for j, seed in enumerate(seeds):
+            env.reset(seed=seed)
+            sc = base.scenario
+            ep_seed = base.loop.seed
+            full = []
+            for p in params_list:
+                base.set_native_params(space.complete(p, defaults))
+                full.append(base.controller.get_params())
+            plants = [build_plant(sc, np.random.default_rng(ep_seed)) for _ in params_list]
+            ctrl = BATCHED[type(base.controller)][1](base, full, _pool(key, base))
+            loop = BatchLoop(sc, plants, ctrl, base.loop.supervision, max_steps)
+            loop.run()
+            for i in range(len(params_list)):
+                rows[i][j] = episode_row(j, seed, sc.name, loop.metrics(i), ids=ids)
+        return [metrics_table(r) for r in rows]

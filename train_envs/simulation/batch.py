@@ -1,0 +1,258 @@
+"""The lockstep twin of :class:`~train_envs.simulation.loop.ClosedLoop`: B members at once.
+
+:class:`BatchLoop` runs B closed loops of one single-car scenario (each member its own
+plant, seed and controller parameters) control step by control step: the plants step
+together (:class:`~train_envs.plants.batch.BatchSingleCar`), a batched controller
+(:class:`BatchController`) computes every active member's command with array
+operations, the ATP supervises each member (:mod:`.supervision`), and the rows are
+recorded into one (steps × members) array per column. A member whose episode is over
+(the runner's termination and truncation, or the step cap) stops stepping; the others
+go on. :meth:`BatchLoop.arrays` gives each member the columns of
+:meth:`ClosedLoop.arrays`, :meth:`BatchLoop.metrics` its
+:func:`~train_envs.metrics.episode_metrics`. The runner adds no arithmetic of its own:
+every value is the single runner's, member by member (tested).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Protocol
+
+import numpy as np
+
+from train_envs.lines.limits import effective_limit_fn
+from train_envs.metrics import episode_metrics
+from train_envs.plants.batch import BatchSingleCar
+from train_envs.plants.lookup import gradient_table
+from train_envs.plants.multi_car import TrainPlant
+from train_envs.scenarios import Scenario
+from train_envs.simulation.loop import INFO_COLUMNS
+from train_envs.simulation.supervision import Supervision
+
+__all__ = ["BatchController", "BatchLoop"]
+
+_COLUMNS = (
+    "t_s", "s_m", "v_mps", "a_mps2", "v_ref_mps", "s_ref_m", "v_limit_mps", "gradient_permil",
+    "u_cmd_N", "u_N", "work_traction_J", "work_brake_J", "saturated",
+    "atp_brake", "overspeed_mps", "overrun_m",
+)  # fmt: skip
+
+
+class BatchController(Protocol):
+    """What :class:`BatchLoop` needs of a batched controller."""
+
+    def reset(self) -> None: ...
+
+    def compute(
+        self, ix: np.ndarray, t: float, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
+    ) -> tuple[np.ndarray, Mapping[str, np.ndarray]]: ...
+
+
+class BatchLoop:
+    """B closed loops of ``scenario`` in lockstep.
+
+    Args:
+        scenario: a single-car, one-input scenario (every member's).
+        plants: the members' reset plants (:func:`~train_envs.scenarios.build_plant`).
+        controller: the batched controller of the B members, reset for the episode.
+        supervision: the ATP settings (``end_on_violation`` is not supported here).
+        max_steps: the step cap (control steps; ``None``: the scenario's own end).
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        plants: Sequence[TrainPlant],
+        controller: BatchController,
+        supervision: Supervision | None = None,
+        max_steps: int | None = None,
+    ) -> None:
+        self.supervision = Supervision() if supervision is None else supervision
+        if self.supervision.end_on_violation:
+            raise ValueError("BatchLoop: supervision.end_on_violation is not supported")
+        if scenario.control_context().n_inputs != 1:
+            raise ValueError("BatchLoop needs a scenario with one whole-train input")
+        self.scenario = sc = scenario
+        self.plant = BatchSingleCar(plants)
+        self.controller = controller
+        self.B = B = len(plants)
+        self.dt = sc.dt_ctrl_s
+        self.n_max = int(math.ceil(sc.t_max_s / self.dt)) + 2
+        self.max_steps = max_steps
+        u0 = np.asarray(sc.initial_command(), float).reshape(-1)
+        self.u_prev = np.full(B, float(u0.sum()))
+        self.k = np.zeros(B, dtype=np.int64)
+        self.done = np.zeros(B, dtype=bool)
+        self.terminated = np.zeros(B, dtype=bool)
+        self.truncated = np.zeros(B, dtype=bool)
+        self._moved = np.full(B, sc.v0_mps > 0.1)
+        self._braking = np.zeros(B, dtype=bool)
+        self.atp_interventions = np.zeros(B, dtype=np.int64)
+        self._window = sc.stop_window()
+        self._limit = effective_limit_fn(sc.track, sc.train.length_m)
+        self._grad = gradient_table(sc.track)
+        shape = (self.n_max, B)
+        self._data = {name: np.full(shape, np.nan) for name in _COLUMNS}
+        self._info: dict[str, np.ndarray] = {}
+
+    def _overrun(self, s: np.ndarray) -> np.ndarray:
+        sc = self.scenario
+        if sc.s_stop_m is None:
+            return np.zeros(s.shape)
+        d = s - (sc.s_stop_m + self._window)
+        return np.where(d > 0.0, d, 0.0)
+
+    def _limits(self, s: np.ndarray) -> np.ndarray:
+        return np.array([float(self._limit(x)) for x in s.tolist()])
+
+    def _active(self) -> np.ndarray:
+        act = ~self.done
+        if self.max_steps is not None:
+            act &= self.k < self.max_steps
+        return act
+
+    # ------------------------------------------------------------------ run
+    def step(self) -> np.ndarray:
+        """One control period of every active member; returns the mask stepped."""
+        act = self._active()
+        ix = np.flatnonzero(act)
+        if ix.size == 0:
+            return act
+        p, sc = self.plant, self.scenario
+        t_all = p.t[ix]
+        t = float(t_all[0])
+        if not np.all(t_all == t):
+            raise RuntimeError("BatchLoop: members out of lockstep")
+        s, v = p.s[ix], p.v[ix]
+        a = p.accel()[ix]
+        u_N = p.force[ix]
+        u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix])
+        u = np.asarray(u, dtype=float)
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"batched controller returned a non-finite command {u}")
+        limit = self._limits(s)
+        brake = np.zeros(ix.size, dtype=bool)
+        if self.supervision.atp:
+            was = self._braking[ix]
+            start = ~was & (v > limit + self.supervision.margin_mps)
+            brake = np.where(was, v > limit, start)
+            self._braking[ix] = brake
+            self.atp_interventions[ix] += start
+            if brake.any():
+                lo, _ = sc.train.envelope_N(v)
+                u = np.where(brake, lo, u)
+        k = int(self.k[ix[0]])
+        ref = sc.reference
+        d = self._data
+        row = {
+            "t_s": t_all,
+            "s_m": s,
+            "v_mps": v,
+            "a_mps2": a,
+            "v_ref_mps": self._v_ref(t, s),
+            "s_ref_m": ref.s_ref(t),
+            "v_limit_mps": limit,
+            "gradient_permil": self._grad(s),
+            "u_cmd_N": u,
+            "u_N": u_N,
+            "work_traction_J": p.work_traction_J[ix],
+            "work_brake_J": p.work_brake_J[ix],
+            "saturated": p.saturated[ix].astype(float),
+            "atp_brake": brake.astype(float),
+            "overspeed_mps": np.where(v - limit > 0.0, v - limit, 0.0),
+            "overrun_m": self._overrun(s),
+        }
+        for name, val in row.items():
+            d[name][k, ix] = val
+        for key in INFO_COLUMNS:
+            if key in info:
+                col = self._info.get(key)
+                if col is None:
+                    col = self._info[key] = np.full((self.n_max, self.B), np.nan)
+                col[k, ix] = info[key]
+        p.step(np.where(act, self._scatter(u, ix), 0.0), self.dt, act)
+        self.u_prev[ix] = u
+        self.k[ix] += 1
+        self._check_done(ix)
+        return act
+
+    def _scatter(self, x: np.ndarray, ix: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.B)
+        out[ix] = x
+        return out
+
+    def _v_ref(self, t: float, s: np.ndarray) -> np.ndarray | float:
+        ref = self.scenario.reference
+        if ref.mode == "distance":
+            return np.array([ref.v_ref(t, x) for x in s.tolist()])
+        return ref.v_ref(t, 0.0)
+
+    def _check_done(self, ix: np.ndarray) -> None:
+        sc, p = self.scenario, self.plant
+        t, s, v = p.t[ix], p.s[ix], p.v[ix]
+        moved = self._moved[ix] | (v > 0.1)
+        self._moved[ix] = moved
+        if sc.s_stop_m is not None:
+            term = (p.stopped[ix] & moved) | (s > sc.s_stop_m + sc.overrun_m)
+        else:
+            term = t >= sc.t_max_s - 1e-9
+        trunc = ~term & ((t >= sc.t_max_s - 1e-9) | (self.k[ix] >= self.n_max - 1))
+        self.terminated[ix] = term
+        self.truncated[ix] = trunc
+        self.done[ix] = term | trunc
+
+    def run(self) -> None:
+        """Step until every member's episode is over (or capped)."""
+        while self._active().any():
+            self.step()
+
+    # ------------------------------------------------------------------ results
+    def arrays(self, b: int) -> dict[str, np.ndarray]:
+        """Member ``b``'s columns as :meth:`ClosedLoop.arrays` gives them."""
+        k = int(self.k[b])
+        cols = {**self._data, **self._info}
+        if k == 0:
+            return {name: arr[:0, b].copy() for name, arr in cols.items()}
+        p, sc = self.plant, self.scenario
+        s, v = float(p.s[b]), float(p.v[b])
+        t = float(p.t[b])
+        limit = float(self._limit(s))
+        last = dict(
+            t_s=t,
+            s_m=s,
+            v_mps=v,
+            a_mps2=float(p.accel()[b]),
+            v_ref_mps=sc.reference.v_ref(t, s),
+            s_ref_m=sc.reference.s_ref(t),
+            v_limit_mps=limit,
+            gradient_permil=sc.gradient_at(s),
+            u_cmd_N=float(self.u_prev[b]),
+            u_N=float(p.force[b]),
+            work_traction_J=float(p.work_traction_J[b]),
+            work_brake_J=float(p.work_brake_J[b]),
+            saturated=0.0,
+            atp_brake=0.0,
+            overspeed_mps=max(v - limit, 0.0),
+            overrun_m=float(self._overrun(np.array([s]))[0]),
+        )
+        out = {}
+        for name, arr in cols.items():
+            col = np.empty(k + 1)
+            col[:k] = arr[:k, b]
+            col[k] = last.get(name, np.nan)
+            out[name] = col
+        return out
+
+    def metrics(self, b: int) -> dict[str, float]:
+        """Member ``b``'s :func:`~train_envs.metrics.episode_metrics`."""
+        sc, tr = self.scenario, self.scenario.train
+        return episode_metrics(
+            self.arrays(b),
+            dt_s=self.dt,
+            s_stop_m=sc.s_stop_m,
+            scheduled_time_s=sc.scheduled_time_s,
+            traction_efficiency=tr.traction_efficiency,
+            regen_efficiency=tr.regen_efficiency,
+            du_max_Nps=sc.du_max_Nps,
+        )
