@@ -21,9 +21,12 @@ import numpy as np
 import pandas as pd
 
 from train_envs.controllers.base import Controller
+from train_envs.controllers.batch import BatchFuzzyPID, BatchPID, rules_batchable
 from train_envs.controllers.dmc.batch import BatchDMC, batchable_dmc
 from train_envs.controllers.dmc.controller import DMCController
+from train_envs.controllers.fuzzy_pid import FuzzyPIDController
 from train_envs.controllers.params import ParamSpace
+from train_envs.controllers.pid import PIDController
 from train_envs.envs.evaluation import EnvCache, _env, _env_defaults, evaluate_env_params
 from train_envs.plants.batch import batchable
 from train_envs.scenarios import build_plant
@@ -37,10 +40,20 @@ def _dmc(env: Any, params: Sequence[Mapping[str, float]], pool: Callable[[int], 
     return BatchDMC(env.controller, params, pool)
 
 
+def _pid(env: Any, params: Sequence[Mapping[str, float]], pool: Callable[[int], Controller]):
+    return BatchPID(env.controller, params)
+
+
+def _fuzzy_pid(env: Any, params: Sequence[Mapping[str, float]], pool: Any):
+    return BatchFuzzyPID(env.controller, params)
+
+
 #: controller class -> (whether a reset instance batches, the batched controller's builder
 #: ``(env, member params, QP pool) -> BatchController``)
 BATCHED: dict[type, tuple[Callable[[Any], bool], Callable[..., Any]]] = {
     DMCController: (batchable_dmc, _dmc),
+    PIDController: (lambda c: True, _pid),
+    FuzzyPIDController: (lambda c: rules_batchable(c.rules) and c._single, _fuzzy_pid),
 }
 
 #: per env key: the controllers members solve their QPs on (built on first use)
@@ -86,6 +99,20 @@ def _pool(key: tuple[str, str], base: Any) -> Callable[[int], Controller]:
     return get
 
 
+def _plants(sc: Any, episode_seeds: Sequence[int]) -> list[Any]:
+    """The members' plants: one per episode seed (a plant with disturbances, which keep
+    a state, is built for every member)."""
+    built: dict[int, Any] = {}
+    out = []
+    for seed in episode_seeds:
+        plant = built.get(seed)
+        if plant is None or plant.disturbances:
+            plant = build_plant(sc, np.random.default_rng(seed))
+            built[seed] = plant
+        out.append(plant)
+    return out
+
+
 def evaluate_env_params_batch(
     env_id: str,
     params_list: Sequence[Mapping[str, float]],
@@ -118,19 +145,25 @@ def evaluate_env_params_batch(
         cap = base.config["max_episode_steps"]
         max_steps = int(cap) * int(base.config["decision_interval"]) if cap else None
         ids = {"env": env_id, "driver": "tuner"}
-        rows: list[list[dict[str, Any] | None]] = [[None] * len(seeds) for _ in params_list]
+        # every (parameter vector, seed) pair is a member; members of one scenario
+        # (all of them, unless the env draws a scenario per seed) run in lockstep
+        groups: dict[int, tuple[Any, list[tuple[int, int, int]], list[dict[str, float]]]] = {}
         for j, seed in enumerate(seeds):
             env.reset(seed=seed)
             sc = base.scenario
             ep_seed = base.loop.seed
-            full = []
-            for p in params_list:
+            group = groups.setdefault(id(sc), (sc, [], []))
+            for i, p in enumerate(params_list):
                 base.set_native_params(space.complete(p, defaults))
-                full.append(base.controller.get_params())
-            plants = [build_plant(sc, np.random.default_rng(ep_seed)) for _ in params_list]
+                group[1].append((i, j, ep_seed))
+                group[2].append(base.controller.get_params())
+        rows: list[list[dict[str, Any] | None]] = [[None] * len(seeds) for _ in params_list]
+        for sc, members, full in groups.values():
+            env.reset(seed=seeds[members[0][1]])  # the controller's structure for sc
+            plants = _plants(sc, [m[2] for m in members])
             ctrl = BATCHED[type(base.controller)][1](base, full, _pool(key, base))
             loop = BatchLoop(sc, plants, ctrl, base.loop.supervision, max_steps)
             loop.run()
-            for i in range(len(params_list)):
-                rows[i][j] = episode_row(j, seed, sc.name, loop.metrics(i), ids=ids)
+            for b, (i, j, _) in enumerate(members):
+                rows[i][j] = episode_row(j, seeds[j], sc.name, loop.metrics(b), ids=ids)
         return [metrics_table(r) for r in rows]

@@ -104,7 +104,7 @@ class BatchLoop:
         return np.where(d > 0.0, d, 0.0)
 
     def _limits(self, s: np.ndarray) -> np.ndarray:
-        return np.array([float(self._limit(x)) for x in s.tolist()])
+        return np.asarray(self._limit(s), dtype=float)
 
     def _active(self) -> np.ndarray:
         act = ~self.done

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from train_envs.controllers.batch import clip_like, resistance_array, rule_outputs, rules_batchable
 from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.dmc.qp import UNCONSTRAINED_INFO
 
@@ -30,20 +31,7 @@ def batchable_dmc(ctrl: DMCController) -> bool:
     """Whether a reset ``ctrl`` has a lockstep twin here: one whole-train input, a
     time-indexed profile read through its scalar methods, a uniform rule partition."""
     sp = ctrl._setpoint
-    return (
-        ctrl._single
-        and sp.scalar
-        and ctrl.rules.single
-        and ctrl.rules.inference == "product"
-        and ctrl.rules.pe._uniform
-        and ctrl.rules.pc._uniform
-    )
-
-
-def _clip_like(x: np.ndarray, lo: np.ndarray | float, hi: np.ndarray | float) -> np.ndarray:
-    """``min(max(x, lo), hi)`` with Python's choice of operand on ties."""
-    x = np.where(lo > x, lo, x)
-    return np.where(hi < x, hi, x)
+    return ctrl._single and sp.scalar and ctrl.rules.single and rules_batchable(ctrl.rules)
 
 
 class BatchDMC:
@@ -73,9 +61,6 @@ class BatchDMC:
         self.a_hi = col["alpha_max"]
         self.trend = col["alpha_trend"]
         self._qp_pool = qp_pool
-        r = ref.rules
-        self._C = np.asarray(r.C[0])
-        self._pe, self._pc = r.pe, r.pc
         self._steps = np.arange(1, ref.P + 1)
         self.reset()
 
@@ -96,29 +81,6 @@ class BatchDMC:
         self._qp_ready: set[int] = set()
 
     # ------------------------------------------------------------------ laws
-    def _locate(self, part: Any, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`TriangularPartition.locate` (uniform partition) over an array."""
-        f = (x - part._lo) / part._h
-        i = np.minimum(np.where(f > 0.0, f, 0.0).astype(np.int64), part.n - 2)
-        w = np.minimum(1.0, f - i)
-        lo, hi = x <= part._lo, x >= part._hi
-        i = np.where(lo, 0, np.where(hi, part.n - 2, i))
-        w = np.where(lo, 0.0, np.where(hi, 1.0, w))
-        return i, w
-
-    def _dh(self, e: np.ndarray, edot: np.ndarray, ix: np.ndarray) -> np.ndarray:
-        """Δh(k_e e, k_ec ė) of the rule base (product inference, centre of sets)."""
-        i, a = self._locate(self._pe, e * self.k_e[ix])
-        j, b = self._locate(self._pc, edot * self.k_ec[ix])
-        a1, b1 = 1.0 - a, 1.0 - b
-        C = self._C
-        return (
-            a1 * b1 * C[i, j]
-            + a1 * b * C[i, j + 1]
-            + a * b1 * C[i + 1, j]
-            + a * b * C[i + 1, j + 1]
-        )
-
     def _feedforward(self, s: np.ndarray, v: np.ndarray) -> np.ndarray:
         ref = self.ref
         if not ref.feedforward:
@@ -129,10 +91,7 @@ class BatchDMC:
             theta = np.asarray(ctx.track.equivalent_gradient_permil_at(s_ff), dtype=float)
         else:
             theta = np.zeros(s.shape)
-        av = np.abs(v)
-        r = tr.davis_a_N + tr.davis_b_Ns_per_m * av + tr.davis_c_Ns2_per_m2 * av * av
-        res = np.where(v != 0, np.copysign(r, v), 0.0)
-        return res - ref.k_davis * v + ref._mG * theta / 1000.0
+        return resistance_array(tr, v) - ref.k_davis * v + ref._mG * theta / 1000.0
 
     def _setpoint(self, t: float, s: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         sp = self.ref._setpoint
@@ -231,7 +190,8 @@ class BatchDMC:
         edot = edot_old + ref._kf * ((e - e_prev) / ref.ctx.dt_s - edot_old)
         self.edot[ix] = edot
         self.e_prev[ix] = e
-        h_c = self.h0[ix] + self.k_h[ix] * self._dh(e, edot, ix)
+        dh = rule_outputs(ref.rules, e, edot, self.k_e[ix], self.k_ec[ix])[0]
+        h_c = self.h0[ix] + self.k_h[ix] * dh
         h_c = np.where(ref.h_min > h_c, ref.h_min, h_c)
         h_c = np.where(1.0 < h_c, 1.0, h_c)
         ff = self._feedforward(s, y)
@@ -301,11 +261,14 @@ class BatchDMC:
         # command: comfort jerk limit, envelope, rate limit
         u = u_a * M + ff
         if ref._jerk_du is not None:
-            u = _clip_like(u, u_prev_N - ref._jerk_du, u_prev_N + ref._jerk_du)
-        lo_y, hi_y = tr.envelope_N(y)
-        u = _clip_like(u, lo_y, hi_y)
+            u = clip_like(u, u_prev_N - ref._jerk_du, u_prev_N + ref._jerk_du)
+        if np.all(y >= 0.0):  # |y| is the first speed of the plan
+            lo_y, hi_y = lo[:, 0], hi[:, 0]
+        else:
+            lo_y, hi_y = tr.envelope_N(y)
+        u = clip_like(u, lo_y, hi_y)
         if ref._du_step is not None:
-            u = _clip_like(u, u_prev_N - ref._du_step, u_prev_N + ref._du_step)
+            u = clip_like(u, u_prev_N - ref._du_step, u_prev_N + ref._du_step)
         self.ff_prev[ix] = ff
         return u, {
             "alpha": alpha,
