@@ -27,6 +27,7 @@ __all__ = [
     "BatchFuzzyPID",
     "BatchPID",
     "clip_like",
+    "per_time",
     "resistance_array",
     "rule_outputs",
 ]
@@ -45,9 +46,17 @@ def resistance_array(train: TrainParams, v: np.ndarray) -> np.ndarray:
     return np.where(v != 0, np.copysign(r, v), 0.0)
 
 
-def reference_arrays(ctx: Any, t: float, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`~train_envs.controllers._common.reference_at` over the members (common
-    time ``t``, positions ``s``): ``(v_ref, a_ref)``."""
+def per_time(t: np.ndarray, fn: Any) -> np.ndarray:
+    """``fn(t_i)`` for every member's time ``t_i`` (members in lockstep share one time,
+    evaluated once): an array of ``fn``'s values, one row per member."""
+    ut, inv = np.unique(t, return_inverse=True)
+    vals = np.array([fn(float(x)) for x in ut.tolist()], dtype=float)
+    return vals[inv.reshape(-1)]
+
+
+def reference_arrays(ctx: Any, t: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~train_envs.controllers._common.reference_at` over the members (times
+    ``t``, positions ``s``): ``(v_ref, a_ref)``."""
     ref = ctx.reference
     prof = ref.profile
     if ref.mode == "distance":
@@ -55,9 +64,8 @@ def reference_arrays(ctx: Any, t: float, s: np.ndarray) -> tuple[np.ndarray, np.
             np.asarray(prof.v_at_s(s), dtype=float),
             np.interp(s, prof.s_m, prof.a_mps2),
         )
-    v = float(prof.v_at_t(t))
-    a = float(np.interp(t, prof.t_s, prof.a_mps2))
-    return np.full(s.shape, v), np.full(s.shape, a)
+    va = per_time(t, lambda x: (float(prof.v_at_t(x)), float(np.interp(x, prof.t_s, prof.a_mps2))))
+    return va[:, 0], va[:, 1]
 
 
 def feedforward_array(ctx: Any, s: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -115,13 +123,28 @@ class _BatchPIDBase:
         self.p = _params(params)
         self.reset()
 
-    def reset(self) -> None:
-        self.integral = np.zeros(self.B)
-        self.e_prev = np.zeros(self.B)
-        self.de_f = np.zeros(self.B)
-        self.started = np.zeros(self.B, dtype=bool)
+    def reset(self, ix: np.ndarray | None = None) -> None:
+        """Start an episode for members ``ix`` (all by default)."""
+        if ix is None:
+            self.integral = np.zeros(self.B)
+            self.e_prev = np.zeros(self.B)
+            self.de_f = np.zeros(self.B)
+            self.started = np.zeros(self.B, dtype=bool)
+            return
+        self.integral[ix] = 0.0
+        self.de_f[ix] = 0.0
+        self.started[ix] = False
 
-    def _error(self, ix: np.ndarray, t: float, s: np.ndarray, v: np.ndarray, kf: float):
+    def set_params(self, b: int, params: Mapping[str, float]) -> None:
+        """Member ``b``'s parameters (the full set, as ``get_params`` gives it)."""
+        for n, val in params.items():
+            self.p[n][b] = float(val)
+        self._derived()
+
+    def _derived(self) -> None:
+        """Per-member values derived from the parameters."""
+
+    def _error(self, ix: np.ndarray, t: np.ndarray, s: np.ndarray, v: np.ndarray, kf: float):
         """(e, a_ref, filtered ė) with the filter state of members ``ix`` advanced."""
         v_ref, a_ref = reference_arrays(self.ctx, t, s)
         e = v_ref - v
@@ -138,7 +161,7 @@ class BatchPID(_BatchPIDBase):
     """B members of :class:`~train_envs.controllers.pid.PIDController`."""
 
     def compute(
-        self, ix: np.ndarray, t: float, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
+        self, ix: np.ndarray, t: np.ndarray, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
     ) -> tuple[np.ndarray, Mapping[str, np.ndarray]]:
         ctx = self.ctx
         dt = ctx.dt_s
@@ -166,11 +189,14 @@ class BatchFuzzyPID(_BatchPIDBase):
         if not (rules_batchable(ref.rules) and ref._single):
             raise ValueError("this Fuzzy-PID configuration has no lockstep twin")
         super().__init__(ref, params)
+        self._derived()
+
+    def _derived(self) -> None:
         p = self.p
         self.scales = [p["dkp"] / UNIVERSE, p["dki"] / UNIVERSE, p["dkd"] / UNIVERSE]
 
     def compute(
-        self, ix: np.ndarray, t: float, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
+        self, ix: np.ndarray, t: np.ndarray, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
     ) -> tuple[np.ndarray, Mapping[str, np.ndarray]]:
         ref, ctx, p = self.ref, self.ctx, self.p
         dt = ctx.dt_s

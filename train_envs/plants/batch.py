@@ -210,24 +210,51 @@ class BatchSingleCar:
         self._groups = [(plants[ix[0]].train, np.array(ix)) for ix in groups.values()]
         self.ST = np.zeros((B, 9))
         for i, p in enumerate(plants):
-            z = p.z.tolist()
-            pl = p._p_last
-            self.ST[i] = [
-                z[0],
-                z[1],
-                z[2] if self.order else 0.0,
-                p.t,
-                pl if type(pl) is float else float(pl[0]),
-                1.0 if p.stopped else 0.0,
-                p._w_now if type(p._w_now) is float else float(p._w_now[0]),
-                0.0,
-                0.0,
-            ]
+            self.ST[i] = self._state_row(p)
         self.work_traction_J = np.array([p.work_traction_J for p in plants])
         self.work_brake_J = np.array([p.work_brake_J for p in plants])
         self.saturated = np.zeros(B, dtype=bool)
         self._kern = _jit.implementation(BATCH_CAR_STEP)
         self._WD0 = np.zeros((B, 1))
+
+    def _state_row(self, p: TrainPlant) -> list[float]:
+        """The state vector of :func:`run_single` of a reset plant ``p``."""
+        z = p.z.tolist()
+        pl = p._p_last
+        w = p._w_now
+        return [
+            z[0], z[1], z[2] if self.order else 0.0, p.t,
+            pl if type(pl) is float else float(pl[0]), 1.0 if p.stopped else 0.0,
+            w if type(w) is float else float(w[0]), 0.0, 0.0,
+        ]  # fmt: skip
+
+    def load(self, b: int, plant: TrainPlant) -> None:
+        """Make member ``b`` the reset ``plant`` (same gradient table, step and actuator
+        as the member it replaces; its own train, disturbances and state)."""
+        old = self.plants[b]
+        if plant.gradient_permil is not old.gradient_permil or not batchable(plant):
+            raise ValueError("load: the plant must share the member's gradient table")
+        if (plant.h, plant.actuator.order, plant._buffer.shape[0]) != (
+            self.h,
+            self.order,
+            self.BL.shape[1],
+        ):
+            raise ValueError("load: the plant differs in step, actuator or dead time")
+        if plant.train is not old.train and len(self._groups) == 1:
+            raise ValueError("load: the plant's train differs from the population's")
+        self.plants[b] = plant
+        self.has_dist = self.has_dist or bool(plant.disturbances)
+        self.C[b] = plant._kconst
+        self.BL[b] = plant._buffer[:, 0]
+        self.heads[b] = plant._head
+        nl = plant._nl
+        self.a0[b], self.b0[b], self.c0[b] = nl.a0, nl.b0, nl.c0
+        self.mg0[b], self.m0[b], self.minv0[b] = nl.mg0, nl.m0, nl.minv0
+        self.acc_coef[b], self.share0[b] = plant._acc_coef, plant._share0
+        self.ST[b] = self._state_row(plant)
+        self.work_traction_J[b] = plant.work_traction_J
+        self.work_brake_J[b] = plant.work_brake_J
+        self.saturated[b] = False
 
     # ------------------------------------------------------------- read-outs
     @property

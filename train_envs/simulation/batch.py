@@ -21,6 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
+from train_envs.controllers.batch import per_time
 from train_envs.lines.limits import effective_limit_fn
 from train_envs.metrics import episode_metrics
 from train_envs.plants.batch import BatchSingleCar
@@ -42,10 +43,10 @@ _COLUMNS = (
 class BatchController(Protocol):
     """What :class:`BatchLoop` needs of a batched controller."""
 
-    def reset(self) -> None: ...
+    def reset(self, ix: np.ndarray | None = None) -> None: ...
 
     def compute(
-        self, ix: np.ndarray, t: float, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
+        self, ix: np.ndarray, t: np.ndarray, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
     ) -> tuple[np.ndarray, Mapping[str, np.ndarray]]: ...
 
 
@@ -81,7 +82,8 @@ class BatchLoop:
         self.n_max = int(math.ceil(sc.t_max_s / self.dt)) + 2
         self.max_steps = max_steps
         u0 = np.asarray(sc.initial_command(), float).reshape(-1)
-        self.u_prev = np.full(B, float(u0.sum()))
+        self._u0 = float(u0.sum())
+        self.u_prev = np.full(B, self._u0)
         self.k = np.zeros(B, dtype=np.int64)
         self.done = np.zeros(B, dtype=bool)
         self.terminated = np.zeros(B, dtype=bool)
@@ -89,12 +91,30 @@ class BatchLoop:
         self._moved = np.full(B, sc.v0_mps > 0.1)
         self._braking = np.zeros(B, dtype=bool)
         self.atp_interventions = np.zeros(B, dtype=np.int64)
+        #: each member's controller info of its last control step
+        self.last_info: list[dict[str, float]] = [{} for _ in range(B)]
         self._window = sc.stop_window()
         self._limit = effective_limit_fn(sc.track, sc.train.length_m)
         self._grad = gradient_table(sc.track)
         shape = (self.n_max, B)
         self._data = {name: np.full(shape, np.nan) for name in _COLUMNS}
         self._info: dict[str, np.ndarray] = {}
+
+    def reset_member(self, b: int, plant: TrainPlant) -> None:
+        """Start a new episode of member ``b`` on the reset ``plant`` (its controller
+        state reset too); the other members go on."""
+        sc = self.scenario
+        self.plant.load(b, plant)
+        self.controller.reset(np.array([b]))
+        self.u_prev[b] = self._u0
+        self.k[b] = 0
+        self.done[b] = self.terminated[b] = self.truncated[b] = False
+        self._moved[b] = sc.v0_mps > 0.1
+        self._braking[b] = False
+        self.atp_interventions[b] = 0
+        self.last_info[b] = {}
+        for col in (*self._data.values(), *self._info.values()):
+            col[:, b] = np.nan
 
     def _overrun(self, s: np.ndarray) -> np.ndarray:
         sc = self.scenario
@@ -113,17 +133,17 @@ class BatchLoop:
         return act
 
     # ------------------------------------------------------------------ run
-    def step(self) -> np.ndarray:
-        """One control period of every active member; returns the mask stepped."""
+    def step(self, mask: np.ndarray | None = None) -> np.ndarray:
+        """One control period of every active member (of ``mask``, if given); returns
+        the mask stepped. Members may be at different steps of their episodes."""
         act = self._active()
+        if mask is not None:
+            act &= mask
         ix = np.flatnonzero(act)
         if ix.size == 0:
             return act
         p, sc = self.plant, self.scenario
-        t_all = p.t[ix]
-        t = float(t_all[0])
-        if not np.all(t_all == t):
-            raise RuntimeError("BatchLoop: members out of lockstep")
+        t = t_all = p.t[ix]
         s, v = p.s[ix], p.v[ix]
         a = p.accel()[ix]
         u_N = p.force[ix]
@@ -142,7 +162,7 @@ class BatchLoop:
             if brake.any():
                 lo, _ = sc.train.envelope_N(v)
                 u = np.where(brake, lo, u)
-        k = int(self.k[ix[0]])
+        k = self.k[ix]
         ref = sc.reference
         d = self._data
         row = {
@@ -151,7 +171,7 @@ class BatchLoop:
             "v_mps": v,
             "a_mps2": a,
             "v_ref_mps": self._v_ref(t, s),
-            "s_ref_m": ref.s_ref(t),
+            "s_ref_m": per_time(t, ref.s_ref),
             "v_limit_mps": limit,
             "gradient_permil": self._grad(s),
             "u_cmd_N": u,
@@ -171,6 +191,11 @@ class BatchLoop:
                 if col is None:
                     col = self._info[key] = np.full((self.n_max, self.B), np.nan)
                 col[k, ix] = info[key]
+        if "fallback" in info:  # what an env step reports of the last control step
+            keys = [key for key in ("fallback", "slack_max", "iterations") if key in info]
+            cols = [np.asarray(info[key], dtype=float).tolist() for key in keys]
+            for r, b in enumerate(ix.tolist()):
+                self.last_info[b] = {key: c[r] for key, c in zip(keys, cols, strict=True)}
         p.step(np.where(act, self._scatter(u, ix), 0.0), self.dt, act)
         self.u_prev[ix] = u
         self.k[ix] += 1
@@ -182,11 +207,11 @@ class BatchLoop:
         out[ix] = x
         return out
 
-    def _v_ref(self, t: float, s: np.ndarray) -> np.ndarray | float:
+    def _v_ref(self, t: np.ndarray, s: np.ndarray) -> np.ndarray:
         ref = self.scenario.reference
         if ref.mode == "distance":
-            return np.array([ref.v_ref(t, x) for x in s.tolist()])
-        return ref.v_ref(t, 0.0)
+            return np.array([ref.v_ref(0.0, x) for x in s.tolist()])
+        return per_time(t, lambda x: ref.v_ref(x, 0.0))
 
     def _check_done(self, ix: np.ndarray) -> None:
         sc, p = self.scenario, self.plant

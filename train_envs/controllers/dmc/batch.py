@@ -20,7 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from train_envs.controllers.batch import clip_like, resistance_array, rule_outputs, rules_batchable
+from train_envs.controllers.batch import (
+    clip_like,
+    per_time,
+    resistance_array,
+    rule_outputs,
+    rules_batchable,
+)
 from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.dmc.qp import UNCONSTRAINED_INFO
 
@@ -54,18 +60,36 @@ class BatchDMC:
             raise ValueError("this DMC configuration has no lockstep twin (see batchable_dmc)")
         self.ref = ref
         self.B = len(params)
-        col = {n: np.array([float(p[n]) for p in params]) for n in params[0]}
-        self.k_e, self.k_ec = col["k_e"], col["k_ec"]
-        self.h0, self.k_h = col["h0"], col["k_h"]
-        self.a_lo = np.minimum(col["alpha_min"], col["alpha_max"])
-        self.a_hi = col["alpha_max"]
-        self.trend = col["alpha_trend"]
+        self.p = {n: np.array([float(p[n]) for p in params]) for n in params[0]}
+        self._derived()
         self._qp_pool = qp_pool
         self._steps = np.arange(1, ref.P + 1)
         self.reset()
 
-    def reset(self) -> None:
-        """Start an episode for every member (the state of a reset controller)."""
+    def _derived(self) -> None:
+        col = self.p
+        self.k_e, self.k_ec = col["k_e"], col["k_ec"]
+        self.h0, self.k_h = col["h0"], col["k_h"]
+        # (the lower bound min(α_min, α_max) of alpha_order="clip", as _on_params_changed)
+        lo, hi = col["alpha_min"].tolist(), col["alpha_max"].tolist()
+        self.a_lo = np.array([min(a, b) for a, b in zip(lo, hi, strict=True)])
+        self.a_hi = col["alpha_max"]
+        self.trend = col["alpha_trend"]
+
+    def set_params(self, b: int, params: Mapping[str, float]) -> None:
+        """Member ``b``'s parameters (the full set, as ``get_params`` gives it)."""
+        for n, val in params.items():
+            self.p[n][b] = float(val)
+        self._derived()
+
+    def reset(self, ix: np.ndarray | None = None) -> None:
+        """Start an episode for members ``ix`` (all by default): the state of a reset
+        controller (its QP core reset before its next QP)."""
+        if ix is not None:
+            for name in ("started", "dU_shift", "u_prev2", "ff_prev", "e_prev", "edot", "_pending"):
+                getattr(self, name)[ix] = 0
+            self._qp_ready.difference_update(np.asarray(ix).tolist())
+            return
         B, ref = self.B, self.ref
         self.started = np.zeros(B, dtype=bool)
         self.yN0 = np.zeros((B, ref.N))
@@ -93,26 +117,37 @@ class BatchDMC:
             theta = np.zeros(s.shape)
         return resistance_array(tr, v) - ref.k_davis * v + ref._mG * theta / 1000.0
 
-    def _setpoint(self, t: float, s: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    def _preview(self, t: float) -> np.ndarray:
+        """Row ``[v_0, v_1 … v_P, s_ref, hold_0, hold_1 … hold_P]`` of the profile at time
+        ``t`` (hold flags 1.0 where the stop hold replaces the preview)."""
         sp = self.ref._setpoint
         prof = sp.profile
-        v0 = prof.v_at_t(t)
         v_prev = prof.sample_sv(t, sp.dt_s, sp.horizon)[1]
-        vv = np.array([v0, *v_prev])
+        hold = [0.0] * (sp.horizon + 1)
+        if sp.hold > 0.0 and t + sp._dtk[-1] >= sp.t_end:
+            hold = [1.0 if t >= sp.t_end else 0.0] + [
+                1.0 if t + d >= sp.t_end else 0.0 for d in sp._dtk
+            ]
+        return np.array([prof.v_at_t(t), *v_prev, prof.s_at_t(t) if sp.catchup else 0.0, *hold])
+
+    def _setpoint(self, t: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(y_r(k), y_r(k+1 … k+P)) of :class:`~.setpoint.SetpointPreview` per member."""
+        sp = self.ref._setpoint
+        n = sp.horizon + 1
+        rows = per_time(t, self._preview)
+        vv = rows[:, :n]
         if sp.catchup:
-            c = sp.gain * (prof.s_at_t(t) - s)
+            c = sp.gain * (rows[:, n] - s)
             c = np.where(-sp.c_max > c, -sp.c_max, c)
             c = np.where(sp.c_max < c, sp.c_max, c)
             q = vv / sp.fade
             y_all = vv + c[:, None] * np.where(q < 1.0, q, 1.0)
         else:
-            y_all = np.broadcast_to(vv, (s.shape[0], vv.size)).copy()
-        if sp.hold > 0.0 and t + sp._dtk[-1] >= sp.t_end:
-            mask = np.array([t + d >= sp.t_end for d in sp._dtk])
-            y_all[:, 1:][:, mask] = -sp.hold
-            if t >= sp.t_end:
-                y_all[:, 0] = -sp.hold
-        return v0, y_all[:, 0], y_all[:, 1:]
+            y_all = vv.copy()
+        held = rows[:, n + 1 :] != 0.0
+        if held.any():
+            y_all[held] = -sp.hold
+        return y_all[:, 0], y_all[:, 1:]
 
     def _satisfaction(
         self, e: np.ndarray, edot: np.ndarray, y_pred: np.ndarray, y_r: np.ndarray
@@ -172,9 +207,9 @@ class BatchDMC:
 
     # ------------------------------------------------------------------ step
     def compute(
-        self, ix: np.ndarray, t: float, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
+        self, ix: np.ndarray, t: np.ndarray, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """One control step of members ``ix`` (indices) at the common time ``t`` with
+        """One control step of members ``ix`` (indices) at their times ``t`` with
         positions ``s``, speeds ``v`` and the commands applied last ``u_prev_N`` (each
         of length ``len(ix)``); returns their commands [N] and info columns."""
         ref = self.ref
@@ -182,7 +217,7 @@ class BatchDMC:
         y = v
         if not np.all(np.isfinite(y)) or not np.all(np.isfinite(s)):
             raise ValueError("measured speed v_mps / position s_m must be finite")
-        _, y0_ref, y_r = self._setpoint(t, s)
+        y0_ref, y_r = self._setpoint(t, s)
         e = y0_ref - y
         first = ~self.started[ix]
         e_prev = np.where(first, e, self.e_prev[ix])
