@@ -14,9 +14,10 @@ after a member's episode ended resets that member (its action is ignored, reward
 not terminated or truncated, the reset's observation and info). ``reset(seed=s)``
 seeds member ``i`` with ``s + i`` (a list: one seed each), as
 :class:`gymnasium.vector.SyncVectorEnv` does; ``options={"reset_mask": mask}`` resets
-only the members of the mask. Infos are merged per key with ``_key`` masks
-(:meth:`VectorEnv._add_info`). Registered as the ``vector_entry_point`` of the ids
-whose controller batches (:func:`train_envs.envs.registration.register_envs`).
+only the members of the mask (the others keep their last observation). Infos are
+merged per key with ``_key`` masks (:meth:`VectorEnv._add_info`). Registered as the
+``vector_entry_point`` of the ids whose controller batches
+(:func:`train_envs.envs.registration.register_envs`).
 """
 
 from __future__ import annotations
@@ -210,6 +211,7 @@ class TrainTuningVectorEnv(VectorEnv):
             for b in range(B):
                 obs[b] = self._bind(b)
             self._pending[:] = False
+            self._obs = obs.copy()
             return obs, infos
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (B,):
@@ -220,8 +222,9 @@ class TrainTuningVectorEnv(VectorEnv):
             if mask[b]:
                 obs[b], info = self._reset_member(b, seeds[b], options or None)
                 infos = self._add_info(infos, info, b)
-            else:  # (the observation now, as a fresh call would give it)
-                obs[b] = self.envs[b].observation_type.observe()
+            else:  # the members left alone: their last observation
+                obs[b] = self._obs[b]
+        self._obs = obs.copy()
         return obs, infos
 
     def _build(self) -> None:
@@ -283,6 +286,7 @@ class TrainTuningVectorEnv(VectorEnv):
             terms[b], truncs[b] = term, trunc
             self._pending[b] = final
             infos = self._add_info(infos, info, b)
+        self._obs = obs.copy()
         return obs, rewards, terms, truncs, infos
 
     def close_extras(self, **kwargs: Any) -> None:
