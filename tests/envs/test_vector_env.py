@@ -100,3 +100,36 @@ def test_ids_without_a_lockstep_controller_have_no_vector_entry_point():
     assert gym.spec("TrainEnvs/Stopping001-v0").vector_entry_point is None
     with pytest.raises(ValueError, match="num_envs"):
         TrainTuningVectorEnv(0, config=CFG, base_config={"scenario": "paper004_urban"})
+
+
+def test_ppo_trains_on_the_vector_env_through_the_sb3_adapter():
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecEnv
+
+    from agents.vec_adapter import GymnasiumVecEnv
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # (small networks: threads only contend)
+    try:
+        venv = GymnasiumVecEnv(_make("TrainEnvs/Stopping001PID-v0", 4))
+        assert isinstance(venv, VecEnv)
+        venv.seed(0)
+        model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu")
+        model.learn(total_timesteps=256)
+        assert model.num_timesteps == 256
+        obs = venv.reset()
+        act, _ = model.predict(obs, deterministic=True)
+        dones = np.zeros(4, dtype=bool)
+        for _ in range(7):  # past the end of the first episodes (6 env steps)
+            _, rew, dones, infos = venv.step(act)
+            assert rew.shape == (4,) and np.isfinite(rew).all()
+            if dones.any():
+                break
+        assert dones.all()  # the same episode length for every member
+        for info in infos:  # the last observation kept aside, the next episode's returned
+            assert info["terminal_observation"].shape == venv.observation_space.shape
+            assert info["TimeLimit.truncated"]
+        venv.close()
+    finally:
+        torch.set_num_threads(threads)
