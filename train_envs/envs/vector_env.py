@@ -90,7 +90,7 @@ class MemberLoop:
 
     @property
     def last_info(self) -> Mapping[str, float]:
-        return self._loop.last_info[self._b]
+        return self._loop.last_info(self._b)
 
     @property
     def terminated(self) -> bool:

@@ -91,14 +91,19 @@ class BatchLoop:
         self._moved = np.full(B, sc.v0_mps > 0.1)
         self._braking = np.zeros(B, dtype=bool)
         self.atp_interventions = np.zeros(B, dtype=np.int64)
-        #: each member's controller info of its last control step
-        self.last_info: list[dict[str, float]] = [{} for _ in range(B)]
         self._window = sc.stop_window()
         self._limit = effective_limit_fn(sc.track, sc.train.length_m)
         self._grad = gradient_table(sc.track)
-        shape = (self.n_max, B)
-        self._data = {name: np.full(shape, np.nan) for name in _COLUMNS}
+        # one (steps, columns, members) table: the runner's columns, then INFO_COLUMNS
+        self._table = np.full((self.n_max, len(_COLUMNS) + len(INFO_COLUMNS), B), np.nan)
+        self._data = {name: self._table[:, j, :] for j, name in enumerate(_COLUMNS)}
+        n0 = len(_COLUMNS)
+        self._info_all = {key: self._table[:, n0 + j, :] for j, key in enumerate(INFO_COLUMNS)}
+        self._info_index = {key: n0 + j for j, key in enumerate(INFO_COLUMNS)}
+        #: the info columns the controller has given (in INFO_COLUMNS order)
         self._info: dict[str, np.ndarray] = {}
+        #: the last control step's fallback, slack_max, iterations per member (NaN: none)
+        self._last = np.full((B, 3), np.nan)
 
     def reset_member(self, b: int, plant: TrainPlant) -> None:
         """Start a new episode of member ``b`` on the reset ``plant`` (its controller
@@ -112,9 +117,8 @@ class BatchLoop:
         self._moved[b] = sc.v0_mps > 0.1
         self._braking[b] = False
         self.atp_interventions[b] = 0
-        self.last_info[b] = {}
-        for col in (*self._data.values(), *self._info.values()):
-            col[:, b] = np.nan
+        self._last[b] = np.nan
+        self._table[:, :, b] = np.nan
 
     def _overrun(self, s: np.ndarray) -> np.ndarray:
         sc = self.scenario
@@ -164,43 +168,60 @@ class BatchLoop:
                 u = np.where(brake, lo, u)
         k = self.k[ix]
         ref = sc.reference
-        d = self._data
-        row = {
-            "t_s": t_all,
-            "s_m": s,
-            "v_mps": v,
-            "a_mps2": a,
-            "v_ref_mps": self._v_ref(t, s),
-            "s_ref_m": per_time(t, ref.s_ref),
-            "v_limit_mps": limit,
-            "gradient_permil": self._grad(s),
-            "u_cmd_N": u,
-            "u_N": u_N,
-            "work_traction_J": p.work_traction_J[ix],
-            "work_brake_J": p.work_brake_J[ix],
-            "saturated": p.saturated[ix].astype(float),
-            "atp_brake": brake.astype(float),
-            "overspeed_mps": np.where(v - limit > 0.0, v - limit, 0.0),
-            "overrun_m": self._overrun(s),
-        }
-        for name, val in row.items():
-            d[name][k, ix] = val
-        for key in INFO_COLUMNS:
-            if key in info:
-                col = self._info.get(key)
-                if col is None:
-                    col = self._info[key] = np.full((self.n_max, self.B), np.nan)
-                col[k, ix] = info[key]
+        row = [
+            t_all,
+            s,
+            v,
+            a,
+            self._v_ref(t, s),
+            per_time(t, ref.s_ref),
+            limit,
+            self._grad(s),
+            u,
+            u_N,
+            p.work_traction_J[ix],
+            p.work_brake_J[ix],
+            p.saturated[ix],
+            brake,
+            np.where(v - limit > 0.0, v - limit, 0.0),
+            self._overrun(s),
+        ]  # in the order of _COLUMNS
+        keys = [key for key in INFO_COLUMNS if key in info]
+        for key in keys:
+            if key not in self._info:
+                self._info = {
+                    c: self._info_all[c] for c in INFO_COLUMNS if c in self._info or c == key
+                }
+        cols = np.arange(len(_COLUMNS))
+        if keys:
+            row += [info[key] for key in keys]
+            cols = np.concatenate([cols, [self._info_index[key] for key in keys]])
+        vals = np.array(row, dtype=float)
+        k0 = int(k[0])
+        if np.all(k == k0):
+            self._table[k0][np.ix_(cols, ix)] = vals
+        else:
+            self._table[k[None, :], cols[:, None], ix[None, :]] = vals
         if "fallback" in info:  # what an env step reports of the last control step
-            keys = [key for key in ("fallback", "slack_max", "iterations") if key in info]
-            cols = [np.asarray(info[key], dtype=float).tolist() for key in keys]
-            for r, b in enumerate(ix.tolist()):
-                self.last_info[b] = {key: c[r] for key, c in zip(keys, cols, strict=True)}
+            for j, key in enumerate(("fallback", "slack_max", "iterations")):
+                if key in info:
+                    self._last[ix, j] = info[key]
         p.step(np.where(act, self._scatter(u, ix), 0.0), self.dt, act)
         self.u_prev[ix] = u
         self.k[ix] += 1
         self._check_done(ix)
         return act
+
+    def last_info(self, b: int) -> dict[str, float]:
+        """Member ``b``'s fallback, slack_max and iterations of its last control step
+        (what an env step reports; empty where the controller gives none)."""
+        out: dict[str, float] = {}
+        for key, x in zip(
+            ("fallback", "slack_max", "iterations"), self._last[b].tolist(), strict=True
+        ):
+            if x == x:
+                out[key] = int(x) if key == "iterations" else x
+        return out
 
     def _scatter(self, x: np.ndarray, ix: np.ndarray) -> np.ndarray:
         out = np.zeros(self.B)
