@@ -9,8 +9,8 @@ runner against :class:`ClosedLoop`, and :func:`evaluate_env_params_batch` agains
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pytest
+from simulation.test_evaluation import _equal_tables
 
 import train_envs  # noqa: F401 - registers the ids
 from train_envs import _jit
@@ -129,15 +129,6 @@ def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list):
         assert loop.metrics(b) == metrics
     if ctrl_name == "dmc" and scenario == "paper004_urban":
         assert qp_steps, "the QP path of a member was not exercised"
-
-
-def _equal_tables(a: pd.DataFrame, b: pd.DataFrame) -> None:
-    assert list(a.columns) == list(b.columns)
-    for c in a.columns:
-        if a[c].dtype.kind == "f":
-            assert np.array_equal(a[c].to_numpy(), b[c].to_numpy(), equal_nan=True), c
-        else:
-            assert a[c].tolist() == b[c].tolist(), c
 
 
 @pytest.mark.parametrize(
