@@ -149,6 +149,7 @@ class TrainTuningVectorEnv(VectorEnv):
                 "twin: use gymnasium.make_vec(..., vectorization_mode='sync')"
             )
         self._builder = entry[1]
+        e0._np_random = None  # (drawn anew, as a fresh env's, on a reset without a seed)
         self._real_loops = [e.loop for e in self.envs]
         self.single_action_space = e0.action_space
         self.single_observation_space = e0.observation_space
