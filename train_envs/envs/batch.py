@@ -159,7 +159,8 @@ def evaluate_env_params_batch(
                 group[2].append(base.controller.get_params())
         rows: list[list[dict[str, Any] | None]] = [[None] * len(seeds) for _ in params_list]
         for sc, members, full in groups.values():
-            env.reset(seed=seeds[members[0][1]])  # the controller's structure for sc
+            if base.scenario is not sc:  # the controller's structure for sc
+                env.reset(seed=seeds[members[0][1]])
             plants = _plants(sc, [m[2] for m in members])
             ctrl = BATCHED[type(base.controller)][1](base, full, _pool(key, base))
             loop = BatchLoop(sc, plants, ctrl, base.loop.supervision, max_steps)
