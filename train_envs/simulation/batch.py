@@ -23,12 +23,11 @@ import numpy as np
 
 from train_envs.controllers.batch import per_time
 from train_envs.lines.limits import effective_limit_fn
-from train_envs.metrics import episode_metrics
 from train_envs.plants.batch import BatchSingleCar
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.multi_car import TrainPlant
 from train_envs.scenarios import Scenario
-from train_envs.simulation.loop import INFO_COLUMNS
+from train_envs.simulation.loop import INFO_COLUMNS, scenario_metrics
 from train_envs.simulation.supervision import Supervision
 
 __all__ = ["BatchController", "BatchLoop"]
@@ -292,13 +291,4 @@ class BatchLoop:
 
     def metrics(self, b: int) -> dict[str, float]:
         """Member ``b``'s :func:`~train_envs.metrics.episode_metrics`."""
-        sc, tr = self.scenario, self.scenario.train
-        return episode_metrics(
-            self.arrays(b),
-            dt_s=self.dt,
-            s_stop_m=sc.s_stop_m,
-            scheduled_time_s=sc.scheduled_time_s,
-            traction_efficiency=tr.traction_efficiency,
-            regen_efficiency=tr.regen_efficiency,
-            du_max_Nps=sc.du_max_Nps,
-        )
+        return scenario_metrics(self.scenario, self.arrays(b))
