@@ -9,6 +9,11 @@ In child processes (SubprocVecEnv with the spawn start method, rl-zoo3) use the 
 prefix so the child imports the package and registers the ids itself::
 
     gymnasium.make("train_envs:TrainEnvs/Stopping001PID-v0")
+
+The ids whose controller has a lockstep twin (PID, Fuzzy-PID, DMC) also register the
+native vector env (:class:`~train_envs.envs.vector_env.TrainTuningVectorEnv`) as their
+``vector_entry_point``: ``gymnasium.make_vec(id, num_envs=B,
+vectorization_mode="vector_entry_point")``.
 """
 
 from __future__ import annotations
@@ -18,6 +23,10 @@ from typing import Any
 import gymnasium as gym
 
 ENTRY_POINT = "train_envs.envs.train_env:TrainTuningEnv"
+#: the native vector env of the ids whose controller has a lockstep twin
+VECTOR_ENTRY_POINT = "train_envs.envs.vector_env:TrainTuningVectorEnv"
+#: controllers with a lockstep twin (:data:`train_envs.envs.batch.BATCHED`)
+BATCHED_CONTROLLERS = ("dmc", "pid", "fuzzy_pid")
 
 #: id -> (default config, one-line description)
 ENV_SPECS: dict[str, tuple[dict[str, Any], str]] = {
@@ -95,5 +104,11 @@ def register_envs() -> list[str]:
     for env_id, (config, _doc) in ENV_SPECS.items():
         if env_id in gym.registry or config["controller"] not in CONTROLLERS:
             continue
-        gym.register(id=env_id, entry_point=ENTRY_POINT, kwargs={"base_config": config})
+        vector = VECTOR_ENTRY_POINT if config["controller"] in BATCHED_CONTROLLERS else None
+        gym.register(
+            id=env_id,
+            entry_point=ENTRY_POINT,
+            vector_entry_point=vector,
+            kwargs={"base_config": config},
+        )
     return registered_ids()

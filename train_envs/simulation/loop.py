@@ -368,17 +368,7 @@ class ClosedLoop:
         return pd.DataFrame(self.arrays())
 
     def metrics(self, df: pd.DataFrame | None = None) -> dict[str, float]:
-        df = self.arrays() if df is None else df
-        sc, tr = self.scenario, self.scenario.train
-        return episode_metrics(
-            df,
-            dt_s=self.dt,
-            s_stop_m=sc.s_stop_m,
-            scheduled_time_s=sc.scheduled_time_s,
-            traction_efficiency=tr.traction_efficiency,
-            regen_efficiency=tr.regen_efficiency,
-            du_max_Nps=sc.du_max_Nps,
-        )
+        return scenario_metrics(self.scenario, self.arrays() if df is None else df)
 
     def result(self, error: str | None = None) -> SimulationResult:
         df = self.dataframe()
@@ -393,6 +383,22 @@ class ClosedLoop:
             wall_time_s=time.perf_counter() - self._t_wall,
             error=error,
         )
+
+
+def scenario_metrics(
+    sc: Scenario, columns: pd.DataFrame | Mapping[str, np.ndarray]
+) -> dict[str, float]:
+    """:func:`~train_envs.metrics.episode_metrics` of a run's columns on scenario ``sc``."""
+    tr = sc.train
+    return episode_metrics(
+        columns,
+        dt_s=sc.dt_ctrl_s,
+        s_stop_m=sc.s_stop_m,
+        scheduled_time_s=sc.scheduled_time_s,
+        traction_efficiency=tr.traction_efficiency,
+        regen_efficiency=tr.regen_efficiency,
+        du_max_Nps=sc.du_max_Nps,
+    )
 
 
 def _total(x: np.ndarray) -> float:

@@ -1,0 +1,135 @@
+"""The native vector env: Gymnasium's vector-env contract and B single envs' trajectories.
+
+Gymnasium 1.4 ships no vector-env checker (``gymnasium.utils.env_checker`` checks single
+envs), so the documented contract is tested here: spaces, reset/step shapes and dtypes,
+next-step autoreset, seeding (``seed + i``), ``reset_mask``, the ``_key`` info masks.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+import train_envs  # noqa: F401 - registers the ids
+from train_envs.envs.registration import VECTOR_ENTRY_POINT
+from train_envs.envs.vector_env import TrainTuningVectorEnv
+
+CFG = {"max_episode_steps": 6}
+IDS = ["TrainEnvs/Urban004-v0", "TrainEnvs/Stopping001PID-v0", "TrainEnvs/Urban004FuzzyPID-v0"]
+
+
+def _make(env_id: str, n: int) -> VectorEnv:
+    return gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", config=CFG)
+
+
+def _same_info(a, b) -> None:
+    assert set(a) == set(b)
+    for k, v in a.items():
+        if isinstance(v, dict):
+            _same_info(v, b[k])
+        else:
+            assert v == b[k] or (v != v and b[k] != b[k]), k
+
+
+def _member_info(infos, i):
+    out = {}
+    for k, v in infos.items():
+        if not k.startswith("_") and infos["_" + k][i]:
+            out[k] = _member_info(v, i) if isinstance(v, dict) else v[i]
+    return out
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_vector_env_steps_as_single_envs_with_next_step_autoreset(env_id):
+    B = 3
+    venv = _make(env_id, B)
+    assert isinstance(venv, TrainTuningVectorEnv)
+    assert venv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    singles = [gym.make(env_id, config=CFG) for _ in range(B)]
+    obs, infos = venv.reset(seed=7)
+    for i, env in enumerate(singles):
+        o, info = env.reset(seed=7 + i)
+        assert np.array_equal(obs[i], o)
+        _same_info(_member_info(infos, i), info)
+    rng = np.random.default_rng(0)
+    pending = [False] * B
+    resets = 0
+    for _ in range(15):  # episodes of 6 env steps: two autoresets per member
+        actions = rng.uniform(-1, 1, venv.action_space.shape).astype(np.float32)
+        obs, rew, term, trunc, infos = venv.step(actions)
+        assert obs.shape == venv.observation_space.shape and obs.dtype == np.float32
+        assert rew.shape == (B,) and term.dtype == bool and trunc.dtype == bool
+        for i, env in enumerate(singles):
+            if pending[i]:
+                o, info = env.reset()
+                r, te, tr = 0.0, False, False
+                resets += 1
+            else:
+                o, r, te, tr, info = env.step(actions[i])
+            pending[i] = te or tr
+            assert np.array_equal(obs[i], o) and rew[i] == r
+            assert (term[i], trunc[i]) == (te, tr)
+            _same_info(_member_info(infos, i), info)
+    assert resets == 2 * B
+    venv.close()
+
+
+def test_vector_env_spaces_seeding_and_reset_mask():
+    venv = _make(IDS[0], 2)
+    single = gym.make(IDS[0], config=CFG)
+    assert venv.single_observation_space == single.observation_space
+    assert venv.single_action_space == single.action_space
+    assert venv.observation_space.shape == (2, *single.observation_space.shape)
+    assert venv.action_space.shape == (2, *single.action_space.shape)
+    a, _ = venv.reset(seed=[3, 4])
+    b, _ = venv.reset(seed=3)
+    assert np.array_equal(a, b)
+    act = np.zeros(venv.action_space.shape, np.float32)
+    stepped, *_ = venv.step(act)
+    again, infos = venv.reset(seed=[None, 4], options={"reset_mask": np.array([False, True])})
+    assert np.array_equal(again[0], stepped[0]) and np.array_equal(again[1], a[1])
+    assert infos["_scenario"].tolist() == [False, True]
+    with pytest.raises(ValueError, match="seed"):
+        venv.reset(seed=[1, 2, 3])
+
+
+def test_ids_without_a_lockstep_controller_have_no_vector_entry_point():
+    assert gym.spec(IDS[0]).vector_entry_point == VECTOR_ENTRY_POINT
+    assert gym.spec("TrainEnvs/Stopping001-v0").vector_entry_point is None
+    with pytest.raises(ValueError, match="num_envs"):
+        TrainTuningVectorEnv(0, config=CFG, base_config={"scenario": "paper004_urban"})
+
+
+def test_ppo_trains_on_the_vector_env_through_the_sb3_adapter():
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecEnv
+
+    from agents.vec_adapter import GymnasiumVecEnv
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # (small networks: threads only contend)
+    try:
+        venv = GymnasiumVecEnv(_make("TrainEnvs/Stopping001PID-v0", 4))
+        assert isinstance(venv, VecEnv)
+        venv.seed(0)
+        model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu")
+        model.learn(total_timesteps=256)
+        assert model.num_timesteps == 256
+        obs = venv.reset()
+        act, _ = model.predict(obs, deterministic=True)
+        dones = np.zeros(4, dtype=bool)
+        for _ in range(7):  # past the end of the first episodes (6 env steps)
+            _, rew, dones, infos = venv.step(act)
+            assert rew.shape == (4,) and np.isfinite(rew).all()
+            if dones.any():
+                break
+        assert dones.all()  # the same episode length for every member
+        for info in infos:  # the last observation kept aside, the next episode's returned
+            assert info["terminal_observation"].shape == venv.observation_space.shape
+            assert info["TimeLimit.truncated"]
+        venv.close()
+    finally:
+        torch.set_num_threads(threads)

@@ -1,0 +1,168 @@
+"""The lockstep path equals the single-member path member by member, bit for bit.
+
+Batched plant (paper 001 with dead time and disturbances, 004, Yizhuang), batched
+controllers (PID on 001, DMC and Fuzzy-PID on 004, DMC on Yizhuang) in the batched
+runner against :class:`ClosedLoop`, and :func:`evaluate_env_params_batch` against
+:func:`evaluate_env_params` on the env ids. Horizons are short (a step cap).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from simulation.test_evaluation import _equal_tables
+
+import train_envs  # noqa: F401 - registers the ids
+from train_envs import _jit
+from train_envs.controllers import make_controller
+from train_envs.controllers.batch import BatchFuzzyPID, BatchPID
+from train_envs.controllers.dmc.batch import BatchDMC
+from train_envs.envs.batch import evaluate_env_params_batch, supports_batch
+from train_envs.envs.evaluation import evaluate_env_params
+from train_envs.plants.batch import BATCH_CAR_STEP, BatchSingleCar
+from train_envs.scenarios import DisturbanceSpec, build_plant, get_scenario
+from train_envs.simulation import ClosedLoop, run_to_end
+from train_envs.simulation.batch import BatchLoop
+
+STEPS = 150  # control steps of the closed-loop comparisons
+
+
+def _disturbed_001():
+    sc = get_scenario("paper001_stopping")
+    dist = DisturbanceSpec(wind="harmonic", random_bound_mps2=0.02, mass_factor_range=(0.95, 1.05))
+    return sc.with_overrides(disturbance=dist)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("name", ["paper001_disturbed", "paper004_urban", "yizhuang"])
+def test_batch_plant_equals_single_plants(name, compiled):
+    if compiled and not _jit.enabled():
+        pytest.skip("numba disabled")
+    sc = _disturbed_001() if name == "paper001_disturbed" else get_scenario(name)
+    B = 4
+    refs = [build_plant(sc, np.random.default_rng(s)) for s in range(B)]
+    bp = BatchSingleCar([build_plant(sc, np.random.default_rng(s)) for s in range(B)])
+    bp._kern = _jit.implementation(BATCH_CAR_STEP, compiled_twin=compiled)
+    rng = np.random.default_rng(0)
+    for k in range(120):
+        u = rng.uniform(-1.0, 1.0, B) * 4e5 * (1.0 if k < 60 else -1.0)
+        act = rng.uniform(size=B) > 0.2
+        for b in np.flatnonzero(act):
+            refs[b].step(float(u[b]), sc.dt_ctrl_s)
+        bp.step(u, sc.dt_ctrl_s, act)
+        acc = bp.accel()
+        for b, p in enumerate(refs):
+            assert (bp.t[b], bp.s[b], bp.v[b], acc[b]) == p._lead_state()
+            assert (bp.work_traction_J[b], bp.work_brake_J[b]) == (
+                p.work_traction_J,
+                p.work_brake_J,
+            )
+            assert bp.force[b] == p.force_total and bool(bp.stopped[b]) == p.stopped
+            if act[b]:
+                assert bool(bp.saturated[b]) == p.saturated
+    assert len({p.train.mass_kg for p in refs}) == B or name != "paper001_disturbed"
+
+
+def test_batch_plant_rejects_a_multi_car_plant():
+    sc = get_scenario("paper003_cruise")
+    with pytest.raises(ValueError, match="single-car"):
+        BatchSingleCar([build_plant(sc, np.random.default_rng(0))])
+
+
+def _members(ctrl_name, sc, params_list, **ctrl_kw):
+    ctrls = []
+    for p in params_list:
+        c = make_controller(ctrl_name, sc, **ctrl_kw)
+        c.set_params(**p)
+        ctrls.append(c)
+    return ctrls
+
+
+def _single_arrays(sc, ctrl, seed):
+    loop = ClosedLoop(sc, ctrl)
+    loop.reset(seed=seed)
+    run_to_end(loop, STEPS)
+    return loop.arrays(), loop.metrics()
+
+
+CASES = [
+    ("pid", "paper001_stopping", [{}, {"kp": 2.0, "ki": 0.3, "kd": 0.5}, {"kp": 0.05}]),
+    ("fuzzy_pid", "paper004_urban", [{}, {"kp0": 3.0, "ke": 30.0, "dkp": 2.0}, {"kd0": 1.5}]),
+    (
+        "dmc",
+        "paper004_urban",
+        [{}, {"k_e": 300.0, "k_h": 0.3, "alpha_trend": -5.0}, {"alpha_max": 0.0, "h0": 0.1}],
+    ),
+    ("dmc", "yizhuang", [{}, {"alpha_min": 0.9, "alpha_max": 0.95, "k_ec": 500.0}]),
+]
+
+
+@pytest.mark.parametrize(("ctrl_name", "scenario", "params_list"), CASES)
+def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list):
+    sc = get_scenario(scenario)
+    kw = {"alpha_order": "clip"} if ctrl_name == "dmc" else {}
+    seeds = [0, 5, 0, 5][: len(params_list)]
+    singles = [
+        _single_arrays(sc, c, s)
+        for c, s in zip(_members(ctrl_name, sc, params_list, **kw), seeds, strict=True)
+    ]
+    ref = make_controller(ctrl_name, sc, **kw)
+    ref.reset(sc.control_context())
+    full = [c.get_params() for c in _members(ctrl_name, sc, params_list, **kw)]
+    pool = _members(ctrl_name, sc, [{}] * len(params_list), **kw)
+    qp_steps = []
+    if ctrl_name == "dmc":
+        ctrl = BatchDMC(ref, full, pool.__getitem__)
+        orig = ctrl._qp_step
+        ctrl._qp_step = lambda b, *a: (qp_steps.append(b), orig(b, *a))[1]
+    else:
+        ctrl = (BatchPID if ctrl_name == "pid" else BatchFuzzyPID)(ref, full)
+    plants = [build_plant(sc, np.random.default_rng(s)) for s in seeds]
+    loop = BatchLoop(sc, plants, ctrl, max_steps=STEPS)
+    loop.run()
+    for b, (arrays, metrics) in enumerate(singles):
+        got = loop.arrays(b)
+        assert set(got) == set(arrays)
+        for name, col in arrays.items():
+            if name != "solve_time_s":  # (a wall-clock time)
+                assert np.array_equal(got[name], col, equal_nan=True), (b, name)
+        assert loop.metrics(b) == metrics
+    if ctrl_name == "dmc" and scenario == "paper004_urban":
+        assert qp_steps, "the QP path of a member was not exercised"
+
+
+@pytest.mark.parametrize(
+    ("env_id", "params_list"),
+    [
+        ("TrainEnvs/Urban004-v0", [{}, {"k_h": 0.3, "k_e": 200.0}, {"alpha_min": 0.9}]),
+        ("TrainEnvs/Stopping001PID-v0", [{"kp": 3.0}, {}]),
+        ("TrainEnvs/Urban004FuzzyPID-v0", [{"dki": 0.5}, {"kp0": 0.02}]),
+    ],
+)
+def test_evaluate_env_params_batch_equals_the_single_evaluations(env_id, params_list):
+    cfg = {"max_episode_steps": 30}
+    seeds = [0, 2]
+    assert supports_batch(env_id, cfg)
+    got = evaluate_env_params_batch(env_id, params_list, seeds, config=cfg)
+    assert len(got) == len(params_list)
+    for p, table in zip(params_list, got, strict=True):
+        exp = evaluate_env_params(env_id, p, seeds=seeds, config=cfg, label="tuner", reuse_env=True)
+        _equal_tables(table, exp)
+
+
+def test_a_config_without_the_batched_path_runs_the_single_evaluations():
+    env_id = "TrainEnvs/Stopping001PID-v0"
+    cfg = {"max_episode_steps": 20, "supervision": {"end_on_violation": True}}
+    assert not supports_batch(env_id, cfg)
+    got = evaluate_env_params_batch(env_id, [{}, {"kp": 0.1}], [1], config=cfg)
+    for p, table in zip([{}, {"kp": 0.1}], got, strict=True):
+        exp = evaluate_env_params(env_id, p, seeds=[1], config=cfg, label="tuner", reuse_env=True)
+        _equal_tables(table, exp)
+
+
+def test_invalid_parameters_raise_as_the_single_evaluation_does():
+    env_id = "TrainEnvs/Stopping001PID-v0"
+    with pytest.raises(ValueError, match="kp"):
+        evaluate_env_params(env_id, {"kp": -1.0}, seeds=[0], config={"max_episode_steps": 2})
+    with pytest.raises(ValueError, match="kp"):
+        evaluate_env_params_batch(env_id, [{}, {"kp": -1.0}], [0], {"max_episode_steps": 2})

@@ -1,0 +1,294 @@
+"""The lockstep twin of :class:`~train_envs.simulation.loop.ClosedLoop`: B members at once.
+
+:class:`BatchLoop` runs B closed loops of one single-car scenario (each member its own
+plant, seed and controller parameters) control step by control step: the plants step
+together (:class:`~train_envs.plants.batch.BatchSingleCar`), a batched controller
+(:class:`BatchController`) computes every active member's command with array
+operations, the ATP supervises each member (:mod:`.supervision`), and the rows are
+recorded into one (steps × members) array per column. A member whose episode is over
+(the runner's termination and truncation, or the step cap) stops stepping; the others
+go on. :meth:`BatchLoop.arrays` gives each member the columns of
+:meth:`ClosedLoop.arrays`, :meth:`BatchLoop.metrics` its
+:func:`~train_envs.metrics.episode_metrics`. The runner adds no arithmetic of its own:
+every value is the single runner's, member by member (tested).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Protocol
+
+import numpy as np
+
+from train_envs.controllers.batch import per_time
+from train_envs.lines.limits import effective_limit_fn
+from train_envs.plants.batch import BatchSingleCar
+from train_envs.plants.lookup import gradient_table
+from train_envs.plants.multi_car import TrainPlant
+from train_envs.scenarios import Scenario
+from train_envs.simulation.loop import INFO_COLUMNS, scenario_metrics
+from train_envs.simulation.supervision import Supervision
+
+__all__ = ["BatchController", "BatchLoop"]
+
+_COLUMNS = (
+    "t_s", "s_m", "v_mps", "a_mps2", "v_ref_mps", "s_ref_m", "v_limit_mps", "gradient_permil",
+    "u_cmd_N", "u_N", "work_traction_J", "work_brake_J", "saturated",
+    "atp_brake", "overspeed_mps", "overrun_m",
+)  # fmt: skip
+
+
+class BatchController(Protocol):
+    """What :class:`BatchLoop` needs of a batched controller."""
+
+    def reset(self, ix: np.ndarray | None = None) -> None: ...
+
+    def compute(
+        self, ix: np.ndarray, t: np.ndarray, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
+    ) -> tuple[np.ndarray, Mapping[str, np.ndarray]]: ...
+
+
+class BatchLoop:
+    """B closed loops of ``scenario`` in lockstep.
+
+    Args:
+        scenario: a single-car, one-input scenario (every member's).
+        plants: the members' reset plants (:func:`~train_envs.scenarios.build_plant`).
+        controller: the batched controller of the B members, reset for the episode.
+        supervision: the ATP settings (``end_on_violation`` is not supported here).
+        max_steps: the step cap (control steps; ``None``: the scenario's own end).
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        plants: Sequence[TrainPlant],
+        controller: BatchController,
+        supervision: Supervision | None = None,
+        max_steps: int | None = None,
+    ) -> None:
+        self.supervision = Supervision() if supervision is None else supervision
+        if self.supervision.end_on_violation:
+            raise ValueError("BatchLoop: supervision.end_on_violation is not supported")
+        if scenario.control_context().n_inputs != 1:
+            raise ValueError("BatchLoop needs a scenario with one whole-train input")
+        self.scenario = sc = scenario
+        self.plant = BatchSingleCar(plants)
+        self.controller = controller
+        self.B = B = len(plants)
+        self.dt = sc.dt_ctrl_s
+        self.n_max = int(math.ceil(sc.t_max_s / self.dt)) + 2
+        self.max_steps = max_steps
+        u0 = np.asarray(sc.initial_command(), float).reshape(-1)
+        self._u0 = float(u0.sum())
+        self.u_prev = np.full(B, self._u0)
+        self.k = np.zeros(B, dtype=np.int64)
+        self.done = np.zeros(B, dtype=bool)
+        self.terminated = np.zeros(B, dtype=bool)
+        self.truncated = np.zeros(B, dtype=bool)
+        self._moved = np.full(B, sc.v0_mps > 0.1)
+        self._braking = np.zeros(B, dtype=bool)
+        self.atp_interventions = np.zeros(B, dtype=np.int64)
+        self._window = sc.stop_window()
+        self._limit = effective_limit_fn(sc.track, sc.train.length_m)
+        self._grad = gradient_table(sc.track)
+        # one (steps, columns, members) table: the runner's columns, then INFO_COLUMNS
+        self._table = np.full((self.n_max, len(_COLUMNS) + len(INFO_COLUMNS), B), np.nan)
+        self._data = {name: self._table[:, j, :] for j, name in enumerate(_COLUMNS)}
+        n0 = len(_COLUMNS)
+        self._info_all = {key: self._table[:, n0 + j, :] for j, key in enumerate(INFO_COLUMNS)}
+        self._info_index = {key: n0 + j for j, key in enumerate(INFO_COLUMNS)}
+        #: the info columns the controller has given (in INFO_COLUMNS order)
+        self._info: dict[str, np.ndarray] = {}
+        #: the last control step's fallback, slack_max, iterations per member (NaN: none)
+        self._last = np.full((B, 3), np.nan)
+
+    def reset_member(self, b: int, plant: TrainPlant) -> None:
+        """Start a new episode of member ``b`` on the reset ``plant`` (its controller
+        state reset too); the other members go on."""
+        sc = self.scenario
+        self.plant.load(b, plant)
+        self.controller.reset(np.array([b]))
+        self.u_prev[b] = self._u0
+        self.k[b] = 0
+        self.done[b] = self.terminated[b] = self.truncated[b] = False
+        self._moved[b] = sc.v0_mps > 0.1
+        self._braking[b] = False
+        self.atp_interventions[b] = 0
+        self._last[b] = np.nan
+        self._table[:, :, b] = np.nan
+
+    def _overrun(self, s: np.ndarray) -> np.ndarray:
+        sc = self.scenario
+        if sc.s_stop_m is None:
+            return np.zeros(s.shape)
+        d = s - (sc.s_stop_m + self._window)
+        return np.where(d > 0.0, d, 0.0)
+
+    def _limits(self, s: np.ndarray) -> np.ndarray:
+        return np.asarray(self._limit(s), dtype=float)
+
+    def _active(self) -> np.ndarray:
+        act = ~self.done
+        if self.max_steps is not None:
+            act &= self.k < self.max_steps
+        return act
+
+    # ------------------------------------------------------------------ run
+    def step(self, mask: np.ndarray | None = None) -> np.ndarray:
+        """One control period of every active member (of ``mask``, if given); returns
+        the mask stepped. Members may be at different steps of their episodes."""
+        act = self._active()
+        if mask is not None:
+            act &= mask
+        ix = np.flatnonzero(act)
+        if ix.size == 0:
+            return act
+        p, sc = self.plant, self.scenario
+        t = t_all = p.t[ix]
+        s, v = p.s[ix], p.v[ix]
+        a = p.accel()[ix]
+        u_N = p.force[ix]
+        u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix])
+        u = np.asarray(u, dtype=float)
+        if not np.all(np.isfinite(u)):
+            raise ValueError(f"batched controller returned a non-finite command {u}")
+        limit = self._limits(s)
+        brake = np.zeros(ix.size, dtype=bool)
+        if self.supervision.atp:
+            was = self._braking[ix]
+            start = ~was & (v > limit + self.supervision.margin_mps)
+            brake = np.where(was, v > limit, start)
+            self._braking[ix] = brake
+            self.atp_interventions[ix] += start
+            if brake.any():
+                lo, _ = sc.train.envelope_N(v)
+                u = np.where(brake, lo, u)
+        k = self.k[ix]
+        ref = sc.reference
+        row = [
+            t_all,
+            s,
+            v,
+            a,
+            self._v_ref(t, s),
+            per_time(t, ref.s_ref),
+            limit,
+            self._grad(s),
+            u,
+            u_N,
+            p.work_traction_J[ix],
+            p.work_brake_J[ix],
+            p.saturated[ix],
+            brake,
+            np.where(v - limit > 0.0, v - limit, 0.0),
+            self._overrun(s),
+        ]  # in the order of _COLUMNS
+        keys = [key for key in INFO_COLUMNS if key in info]
+        for key in keys:
+            if key not in self._info:
+                self._info = {
+                    c: self._info_all[c] for c in INFO_COLUMNS if c in self._info or c == key
+                }
+        cols = np.arange(len(_COLUMNS))
+        if keys:
+            row += [info[key] for key in keys]
+            cols = np.concatenate([cols, [self._info_index[key] for key in keys]])
+        vals = np.array(row, dtype=float)
+        k0 = int(k[0])
+        if np.all(k == k0):
+            self._table[k0][np.ix_(cols, ix)] = vals
+        else:
+            self._table[k[None, :], cols[:, None], ix[None, :]] = vals
+        if "fallback" in info:  # what an env step reports of the last control step
+            for j, key in enumerate(("fallback", "slack_max", "iterations")):
+                if key in info:
+                    self._last[ix, j] = info[key]
+        p.step(np.where(act, self._scatter(u, ix), 0.0), self.dt, act)
+        self.u_prev[ix] = u
+        self.k[ix] += 1
+        self._check_done(ix)
+        return act
+
+    def last_info(self, b: int) -> dict[str, float]:
+        """Member ``b``'s fallback, slack_max and iterations of its last control step
+        (what an env step reports; empty where the controller gives none)."""
+        out: dict[str, float] = {}
+        for key, x in zip(
+            ("fallback", "slack_max", "iterations"), self._last[b].tolist(), strict=True
+        ):
+            if x == x:
+                out[key] = int(x) if key == "iterations" else x
+        return out
+
+    def _scatter(self, x: np.ndarray, ix: np.ndarray) -> np.ndarray:
+        out = np.zeros(self.B)
+        out[ix] = x
+        return out
+
+    def _v_ref(self, t: np.ndarray, s: np.ndarray) -> np.ndarray:
+        ref = self.scenario.reference
+        if ref.mode == "distance":
+            return np.array([ref.v_ref(0.0, x) for x in s.tolist()])
+        return per_time(t, lambda x: ref.v_ref(x, 0.0))
+
+    def _check_done(self, ix: np.ndarray) -> None:
+        sc, p = self.scenario, self.plant
+        t, s, v = p.t[ix], p.s[ix], p.v[ix]
+        moved = self._moved[ix] | (v > 0.1)
+        self._moved[ix] = moved
+        if sc.s_stop_m is not None:
+            term = (p.stopped[ix] & moved) | (s > sc.s_stop_m + sc.overrun_m)
+        else:
+            term = t >= sc.t_max_s - 1e-9
+        trunc = ~term & ((t >= sc.t_max_s - 1e-9) | (self.k[ix] >= self.n_max - 1))
+        self.terminated[ix] = term
+        self.truncated[ix] = trunc
+        self.done[ix] = term | trunc
+
+    def run(self) -> None:
+        """Step until every member's episode is over (or capped)."""
+        while self._active().any():
+            self.step()
+
+    # ------------------------------------------------------------------ results
+    def arrays(self, b: int) -> dict[str, np.ndarray]:
+        """Member ``b``'s columns as :meth:`ClosedLoop.arrays` gives them."""
+        k = int(self.k[b])
+        cols = {**self._data, **self._info}
+        if k == 0:
+            return {name: arr[:0, b].copy() for name, arr in cols.items()}
+        p, sc = self.plant, self.scenario
+        s, v = float(p.s[b]), float(p.v[b])
+        t = float(p.t[b])
+        limit = float(self._limit(s))
+        last = dict(
+            t_s=t,
+            s_m=s,
+            v_mps=v,
+            a_mps2=float(p.accel()[b]),
+            v_ref_mps=sc.reference.v_ref(t, s),
+            s_ref_m=sc.reference.s_ref(t),
+            v_limit_mps=limit,
+            gradient_permil=sc.gradient_at(s),
+            u_cmd_N=float(self.u_prev[b]),
+            u_N=float(p.force[b]),
+            work_traction_J=float(p.work_traction_J[b]),
+            work_brake_J=float(p.work_brake_J[b]),
+            saturated=0.0,
+            atp_brake=0.0,
+            overspeed_mps=max(v - limit, 0.0),
+            overrun_m=float(self._overrun(np.array([s]))[0]),
+        )
+        out = {}
+        for name, arr in cols.items():
+            col = np.empty(k + 1)
+            col[:k] = arr[:k, b]
+            col[k] = last.get(name, np.nan)
+            out[name] = col
+        return out
+
+    def metrics(self, b: int) -> dict[str, float]:
+        """Member ``b``'s :func:`~train_envs.metrics.episode_metrics`."""
+        return scenario_metrics(self.scenario, self.arrays(b))
