@@ -631,6 +631,27 @@ class Evaluations:
             if self.store is not None and not final:  # a final failure is record()ed
                 self.store.record_failure(problem, keys[i], X[i], error, attempt, generation, i)
 
+        if self.store is not None:
+            self.store.hold()  # a journal study: the batch's writes go out in one append
+        try:
+            self._run(problem, tasks, on_result, on_error, record)
+        finally:
+            if self.store is not None:  # also on Ctrl-C: keep what finished
+                ts = time.perf_counter()
+                self.store.flush()
+                self.stats.store_time_s += time.perf_counter() - ts
+        self.stats.batch_time_s += time.perf_counter() - t0
+        return [self.cache[k] for k in keys]
+
+    def _run(
+        self,
+        problem: TaskProblem,
+        tasks: list[Any],
+        on_result: OnResult,
+        on_error: OnError,
+        record: Callable[[int, dict[str, Any]], None],
+    ) -> None:
+        """Run ``tasks`` on the backend; record the ones that failed for good."""
         restarts = getattr(self.backend, "restarts", 0)
         results = self.backend.run(tasks, on_result=on_result, on_error=on_error)
         deaths = getattr(self.backend, "restarts", 0) - restarts
@@ -655,5 +676,3 @@ class Evaluations:
                 outcome = problem.failure_outcome(res.error)
                 outcome["attempts"] = res.attempts
                 record(j, outcome)
-        self.stats.batch_time_s += time.perf_counter() - t0
-        return [self.cache[k] for k in keys]
