@@ -3,11 +3,13 @@
 Run (not a test; numbers go in the closing notes)::
 
     python benchmarks/bench_tuners.py speed         # evaluations/s, 1 vs N worker processes
-    python benchmarks/bench_tuners.py persistence   # Optuna/SQLite cost per evaluation
+    python benchmarks/bench_tuners.py persistence   # Optuna SQLite/journal cost per evaluation
     python benchmarks/bench_tuners.py convergence   # MOWOA/MOPSO vs NSGA-II on ZDT
     python benchmarks/bench_tuners.py tune004       # 20 x 10 tuning run on paper 004
     python benchmarks/bench_tuners.py compare004 --pop004 16 --iters004 8 --seeds 1 2 3
                                                     # MOWOA vs NSGA-II vs MOEA/D on 004 (HV)
+    python benchmarks/bench_tuners.py lockstep      # 40 x 100 MOWOA on 004: lockstep vs processes
+    python benchmarks/bench_tuners.py lockstep --quick   # the same at 10 x 4
     python benchmarks/bench_tuners.py all
 
 ``speed`` evaluates the same points on ``--env`` (default the 004 Fuzzy-PID id, one
@@ -31,6 +33,13 @@ id of paper 004 if registered, else its Fuzzy-PID id) with MOWOA at a reduced bu
 normalised by the tolerance values ``TOLERANCES``, constraints ``CONSTRAINTS``) and
 compares the selected solution with the defaults on held-out scenario seeds, by the
 Tchebycheff value under the target weights and the run's normalisation.
+``lockstep`` runs the same MOWOA tuning of ``--env-ls`` (default ``Urban004-v0``, its
+default objectives, scenario seeds ``--ls-seeds``, algorithm seed 1) once per
+``--ls-runs`` entry ``BACKEND:STORAGE`` (``sqlite`` or ``journal`` files in a temporary
+folder), the entries in turn and their order reversed every round (``--ls-rounds``),
+and prints a markdown table: wall time, evaluations/s, main-process storage time per
+stored trial (``EvalStats.store_time_s`` over the trials written) and the selected
+point, which must be the same in every run.
 """
 
 from __future__ import annotations
@@ -148,7 +157,12 @@ def bench_persistence(pop: int, iters: int, n_var: int = 7) -> dict:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     out: dict = {"pop": pop, "iters": iters, "n_var": n_var, "loadavg": _load()}
     with tempfile.TemporaryDirectory() as tmp:
-        for label, storage in (("memory", None), ("sqlite", f"sqlite:///{tmp}/bench.db")):
+        stores = (
+            ("memory", None),
+            ("sqlite", f"sqlite:///{tmp}/bench.db"),
+            ("journal", f"journal:{tmp}/bench.log"),
+        )
+        for label, storage in stores:
             prob = PymooTaskProblem(get_problem("zdt1", n_var=n_var))
             t0 = time.perf_counter()
             r = tune(prob, "mowoa", pop, iters, backend="serial", storage=storage, study=label)
@@ -166,6 +180,66 @@ def bench_persistence(pop: int, iters: int, n_var: int = 7) -> dict:
                 f"{out[label]['checkpoint_ms_per_gen']:.1f} ms per checkpoint (generation), "
                 f"run {wall:.1f} s"
             )
+    return out
+
+
+# ------------------------------------------------------------------ lockstep
+def bench_lockstep(
+    env_id: str, pop: int, iters: int, workers: int, seeds, runs, rounds: int = 1
+) -> dict:
+    import optuna
+
+    from tuners.run import tune
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    out: dict = {"env": env_id, "pop": pop, "iters": iters, "workers": workers,
+                 "seeds": list(seeds), "loadavg_start": _load(), "runs": []}  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        for rnd in range(rounds):
+            for k, run in enumerate(runs if rnd % 2 == 0 else runs[::-1]):
+                backend, storage = run.split(":")
+                stem = f"{tmp}/r{rnd}-{k}"
+                url = {"sqlite": f"sqlite:///{stem}.db", "journal": f"journal:{stem}.log"}
+                url = url.get(storage)
+                t0 = time.perf_counter()
+                r = tune(env_id, "mowoa", pop, iters, backend=backend, workers=workers,
+                         storage=url, study="ls", seeds=list(seeds), seed=1)  # fmt: skip
+                wall = time.perf_counter() - t0
+                st = r.stats
+                stored = st.run + st.failed_attempts
+                out["runs"].append(
+                    {
+                        "round": rnd,
+                        "run": run,
+                        "wall_s": wall,
+                        "evaluations": st.run,
+                        "evals_per_s": st.run / wall,
+                        "store_ms_per_trial": 1e3 * st.store_time_s / max(stored, 1),
+                        "checkpoint_ms_per_gen": 1e3 * st.checkpoint_time_s / iters,
+                        "selected_key": None if r.selected is None else r.selected["key"],
+                        "selected": r.selected_params,
+                    }
+                )
+                print(f"[lockstep] round {rnd} {run}: {wall:.1f} s, {st.run} evaluations",
+                      flush=True)  # fmt: skip
+    out["loadavg_end"] = _load()
+    keys = {r["selected_key"] for r in out["runs"]}
+    out["same_selected"] = len(keys) == 1
+    print(
+        f"\n{env_id}: MOWOA {pop} x {iters}, {workers} workers, scenario seeds {list(seeds)}; "
+        f"load {out['loadavg_start']} -> {out['loadavg_end']}\n"
+    )
+    print("| round | backend:storage | wall [s] | evaluations | evals/s | storage [ms/trial] "
+          "| checkpoint [ms/gen] | selected point |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|")
+    for r in out["runs"]:
+        sel = ", ".join(f"{n}={v:.4g}" for n, v in (r["selected"] or {}).items())
+        print(
+            f"| {r['round']} | {r['run']} | {r['wall_s']:.1f} | {r['evaluations']} | "
+            f"{r['evals_per_s']:.1f} | {r['store_ms_per_trial']:.2f} | "
+            f"{r['checkpoint_ms_per_gen']:.1f} | {r['selected_key']} ({sel}) |"
+        )
+    print(f"\nsame selected point in every run: {'yes' if out['same_selected'] else 'NO'}")
     return out
 
 
@@ -358,7 +432,8 @@ def bench_compare004(env_id: str, pop: int, iters: int, workers: int, seeds, tra
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
-        "part", choices=["speed", "persistence", "convergence", "tune004", "compare004", "all"]
+        "part",
+        choices=["speed", "persistence", "convergence", "tune004", "compare004", "lockstep", "all"],
     )
     ap.add_argument("--env", default="TrainEnvs/Urban004FuzzyPID-v0")
     ap.add_argument("--n", type=int, default=12, help="evaluations of the speed benchmark")
@@ -373,12 +448,27 @@ def main() -> None:
     ap.add_argument("--holdout", type=int, nargs="+", default=[100, 101, 102, 103, 104])
     ap.add_argument("--db", default="sqlite:///out/bench_tuners.db")
     ap.add_argument("--json", default=None, help="write the results to this JSON file")
+    ap.add_argument("--env-ls", default="TrainEnvs/Urban004-v0", help="env of `lockstep`")
+    ap.add_argument("--ls-seeds", type=int, nargs="+", default=[0], help="its scenario seeds")
+    ap.add_argument(
+        "--ls-runs",
+        nargs="+",
+        default=["processes:sqlite", "lockstep:sqlite", "lockstep:journal"],
+        help="BACKEND:STORAGE per run of `lockstep` (storage sqlite, journal or memory)",
+    )
+    ap.add_argument("--ls-rounds", type=int, default=1, help="rounds of `lockstep`")
+    ap.add_argument("--quick", action="store_true", help="`lockstep` at 10 x 4 instead of 40 x 100")
     args = ap.parse_args()
     res: dict = {}
     if args.part in ("speed", "all"):
         res["speed"] = bench_speed(args.env, args.n, args.workers, args.rounds)
     if args.part in ("persistence", "all"):
         res["persistence"] = bench_persistence(20, 10, args.n_var)
+    if args.part in ("lockstep", "all"):
+        pop, iters = (10, 4) if args.quick else (40, 100)
+        res["lockstep"] = bench_lockstep(
+            args.env_ls, pop, iters, args.workers, args.ls_seeds, args.ls_runs, args.ls_rounds
+        )
     if args.part in ("convergence", "all"):
         res["convergence"] = bench_convergence(args.seeds, 40, 100)
     if args.part in ("tune004", "all"):

@@ -149,6 +149,7 @@ class TuneResult:
             (scale = nadir − ideal); normalization: how it was chosen (:func:`summarize`).
         pymoo_result: pymoo's ``Result`` (``res.X``, ``res.F``, ``res.opt``, ...).
         stats: evaluation counters (run, cached, failures, times).
+        backend: the evaluation backend that ran (``""`` for a loaded result).
     """
 
     study_name: str
@@ -166,6 +167,7 @@ class TuneResult:
     pymoo_result: Any = None
     stats: EvalStats = field(default_factory=EvalStats)
     wall_time_s: float = 0.0
+    backend: str = ""
 
     @property
     def selected_params(self) -> dict[str, float] | None:
@@ -632,6 +634,7 @@ def _run(
     )
     out.pymoo_result = res
     out.stats = evals.stats
+    out.backend = be.name
     out.wall_time_s = time.perf_counter() - t_start
     return out
 
