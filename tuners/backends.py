@@ -35,7 +35,8 @@ Failure accounting — an evaluation fails only by its own error:
 :class:`Evaluations` is what a :class:`tuners.problem.TaskProblem` calls per batch: it
 answers points already evaluated (same problem fingerprint and bit-identical x) from
 its cache — loaded from the study when resuming — runs the rest on the backend, and
-writes every finished evaluation to the store as soon as it finishes. If every
+writes every finished evaluation to the store as soon as it finishes (a journal study
+makes the batch's writes durable with one ``fsync`` at its end). If every
 evaluation fails before any has ever succeeded (a misconfiguration: unknown metric,
 unimportable env, a script without the ``if __name__ == "__main__":`` guard that the
 spawn start method needs), it raises instead of filling the study with failures.

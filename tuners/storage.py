@@ -1,8 +1,9 @@
 """Persistence of a tuning run in an Optuna study: evaluations, checkpoints, resume.
 
 Layout of the study (any Optuna RDB storage: an SQLite file — ``sqlite:///tuning.db`` is
-:func:`tuners.run.tune`'s default —, a PostgreSQL/MySQL URL, or in memory), readable by
-``optuna-dashboard sqlite:///tuning.db``:
+:func:`tuners.run.tune`'s default —, a PostgreSQL/MySQL URL; ``journal:PATH``, Optuna's
+journal file, whose writes cost the driver ~40× less CPU (:class:`JournalStudyStorage`);
+or in memory), readable by ``optuna-dashboard sqlite:///tuning.db`` (or ``PATH``):
 
 * directions: ``minimize`` for every objective; ``study.metric_names`` = objective names;
 * study user attr ``tuner_config``: the run settings (:mod:`tuners.settings`);
