@@ -8,6 +8,7 @@ Run (not a test; numbers go in the closing notes)::
     python benchmarks/bench_tuners.py tune004       # 20 x 10 tuning run on paper 004
     python benchmarks/bench_tuners.py compare004 --pop004 16 --iters004 8 --seeds 1 2 3
                                                     # MOWOA vs NSGA-II vs MOEA/D on 004 (HV)
+    python benchmarks/bench_tuners.py storage       # driver ms per stored trial: SQLite vs journal
     python benchmarks/bench_tuners.py lockstep      # 40 x 100 MOWOA on 004: lockstep vs processes
     python benchmarks/bench_tuners.py lockstep --quick   # the same at 10 x 4
     python benchmarks/bench_tuners.py all
@@ -33,6 +34,10 @@ id of paper 004 if registered, else its Fuzzy-PID id) with MOWOA at a reduced bu
 normalised by the tolerance values ``TOLERANCES``, constraints ``CONSTRAINTS``) and
 compares the selected solution with the defaults on held-out scenario seeds, by the
 Tchebycheff value under the target weights and the run's normalisation.
+``storage`` times ``StudyStore.record`` in the driver (CPU and wall time per trial of an
+``--env-ls`` outcome) for an SQLite file and a journal file in alternating rounds
+(``--rounds``, 40 trials each, held and flushed per round as ``Evaluations`` does per
+batch) and reports the median per-round CPU ratio.
 ``lockstep`` runs the same MOWOA tuning of ``--env-ls`` (default ``Urban004-v0``, its
 default objectives, scenario seeds ``--ls-seeds``, algorithm seed 1) once per
 ``--ls-runs`` entry ``BACKEND:STORAGE`` (``sqlite`` or ``journal`` files in a temporary
@@ -180,6 +185,64 @@ def bench_persistence(pop: int, iters: int, n_var: int = 7) -> dict:
                 f"{out[label]['checkpoint_ms_per_gen']:.1f} ms per checkpoint (generation), "
                 f"run {wall:.1f} s"
             )
+    return out
+
+
+# ------------------------------------------------------------------- storage
+def bench_storage(env_id: str, rounds: int, n: int = 40) -> dict:
+    """Driver time of ``StudyStore.record`` per trial, SQLite and journal in turn."""
+    import optuna
+
+    from tuners.problem import EnvTuningProblem
+    from tuners.storage import StudyStore
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    prob = EnvTuningProblem(env_id)
+    rng = np.random.default_rng(0)
+    cols = [*prob.objective_columns, *[c for c, _ in prob.constraints]]
+    out: dict = {"env": env_id, "trials_per_round": n, "loadavg_start": _load()}
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = {"fingerprint": prob.fingerprint_hash()}
+        stores = {
+            "sqlite": StudyStore(f"sqlite:///{tmp}/s.db", "s", prob, cfg),
+            "journal": StudyStore(f"journal:{tmp}/s.log", "s", prob, cfg),
+        }
+        times: dict[str, list] = {k: [] for k in stores}
+        try:
+            for rnd in range(rounds):
+                for name in stores if rnd % 2 == 0 else list(stores)[::-1]:
+                    st = stores[name]
+                    X = rng.uniform(-1, 1, (n, prob.n_var))
+                    outs = [
+                        {"F": rng.random(prob.n_obj).tolist(), "G": [-0.1],
+                         "metrics": {c: [float(rng.random())] for c in cols},
+                         "wall_time_s": 0.05, "worker": "bench:0"}
+                        for _ in range(n)
+                    ]  # fmt: skip
+                    c0, w0 = time.process_time(), time.perf_counter()
+                    st.hold()  # as Evaluations does per batch
+                    for i, x in enumerate(X):
+                        st.record(prob, prob.key(x), x, outs[i], rnd, i)
+                    st.flush()
+                    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+                    times[name].append((1e3 * cpu / n, 1e3 * wall / n))
+        finally:
+            for st in stores.values():
+                st.close()
+    out["loadavg_end"] = _load()
+    print(f"\nstorage per trial ({env_id} outcome, {n} trials x {rounds} rounds, "
+          f"load {out['loadavg_start']} -> {out['loadavg_end']})\n")  # fmt: skip
+    print("| storage | CPU ms/trial (median) | wall ms/trial (median) | per round (CPU) |")
+    print("|---|---|---|---|")
+    for name, t in times.items():
+        cpu = [a for a, _ in t]
+        wall = [b for _, b in t]
+        out[name] = {"cpu_ms": cpu, "wall_ms": wall}
+        print(f"| {name} | {np.median(cpu):.2f} | {np.median(wall):.2f} | "
+              f"{', '.join(f'{v:.2f}' for v in cpu)} |")  # fmt: skip
+    ratio = np.median(np.array(out["sqlite"]["cpu_ms"]) / np.array(out["journal"]["cpu_ms"]))
+    out["cpu_ratio_sqlite_over_journal"] = float(ratio)
+    print(f"\nmedian CPU ratio sqlite / journal per round: {ratio:.1f}")
     return out
 
 
@@ -433,7 +496,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "part",
-        choices=["speed", "persistence", "convergence", "tune004", "compare004", "lockstep", "all"],
+        choices=[
+            "speed",
+            "persistence",
+            "storage",
+            "convergence",
+            "tune004",
+            "compare004",
+            "lockstep",
+            "all",
+        ],  # fmt: skip
     )
     ap.add_argument("--env", default="TrainEnvs/Urban004FuzzyPID-v0")
     ap.add_argument("--n", type=int, default=12, help="evaluations of the speed benchmark")
@@ -464,6 +536,8 @@ def main() -> None:
         res["speed"] = bench_speed(args.env, args.n, args.workers, args.rounds)
     if args.part in ("persistence", "all"):
         res["persistence"] = bench_persistence(20, 10, args.n_var)
+    if args.part in ("storage", "all"):
+        res["storage"] = bench_storage(args.env_ls, args.rounds)
     if args.part in ("lockstep", "all"):
         pop, iters = (10, 4) if args.quick else (40, 100)
         res["lockstep"] = bench_lockstep(
