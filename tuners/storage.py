@@ -2,7 +2,7 @@
 
 Layout of the study (any Optuna RDB storage: an SQLite file — ``sqlite:///tuning.db`` is
 :func:`tuners.run.tune`'s default —, a PostgreSQL/MySQL URL; ``journal:PATH``, Optuna's
-journal file, whose writes cost the driver ~40× less CPU (:class:`JournalStudyStorage`);
+journal file, whose writes cost the driver ~50× less CPU (:class:`JournalStudyStorage`);
 or in memory), readable by ``optuna-dashboard sqlite:///tuning.db`` (or ``PATH``):
 
 * directions: ``minimize`` for every objective; ``study.metric_names`` = objective names;
