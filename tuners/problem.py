@@ -24,7 +24,8 @@
   ``F = G = fail_value`` (1e10): infeasible, never selected, and the run goes on.
 
 Each point becomes a picklable task (:class:`EnvTask`) run by :func:`run_task` in the
-current process or a worker; :class:`TaskProblem` hands a whole batch to its
+current process or a worker (tasks of one env several at once by
+:meth:`EnvTask.run_batch`: the lockstep backend); :class:`TaskProblem` hands a whole batch to its
 ``runner`` (:class:`tuners.backends.Evaluations`: cache, backend, storage) when one is
 attached, else runs the tasks serially here. :class:`PymooTaskProblem` wraps any pymoo
 problem (ZDT1, a sphere, ...) the same way, for tests and benchmarks.
