@@ -530,6 +530,10 @@ def main() -> None:
     )
     ap.add_argument("--ls-rounds", type=int, default=1, help="rounds of `lockstep`")
     ap.add_argument("--quick", action="store_true", help="`lockstep` at 10 x 4 instead of 40 x 100")
+    ap.add_argument(
+        "--ls-budget", type=int, nargs=2, default=None, metavar=("POP", "ITERS"),
+        help="`lockstep` at this population and number of generations",
+    )  # fmt: skip
     args = ap.parse_args()
     res: dict = {}
     if args.part in ("speed", "all"):
@@ -539,7 +543,7 @@ def main() -> None:
     if args.part in ("storage", "all"):
         res["storage"] = bench_storage(args.env_ls, args.rounds)
     if args.part in ("lockstep", "all"):
-        pop, iters = (10, 4) if args.quick else (40, 100)
+        pop, iters = args.ls_budget or ((10, 4) if args.quick else (40, 100))
         res["lockstep"] = bench_lockstep(
             args.env_ls, pop, iters, args.workers, args.ls_seeds, args.ls_runs, args.ls_rounds
         )
