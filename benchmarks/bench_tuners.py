@@ -3,11 +3,14 @@
 Run (not a test; numbers go in the closing notes)::
 
     python benchmarks/bench_tuners.py speed         # evaluations/s, 1 vs N worker processes
-    python benchmarks/bench_tuners.py persistence   # Optuna/SQLite cost per evaluation
+    python benchmarks/bench_tuners.py persistence   # Optuna SQLite/journal cost per evaluation
     python benchmarks/bench_tuners.py convergence   # MOWOA/MOPSO vs NSGA-II on ZDT
     python benchmarks/bench_tuners.py tune004       # 20 x 10 tuning run on paper 004
     python benchmarks/bench_tuners.py compare004 --pop004 16 --iters004 8 --seeds 1 2 3
                                                     # MOWOA vs NSGA-II vs MOEA/D on 004 (HV)
+    python benchmarks/bench_tuners.py storage       # driver ms per stored trial: SQLite vs journal
+    python benchmarks/bench_tuners.py lockstep      # 40 x 100 MOWOA on 004: lockstep vs processes
+    python benchmarks/bench_tuners.py lockstep --quick   # the same at 10 x 4
     python benchmarks/bench_tuners.py all
 
 ``speed`` evaluates the same points on ``--env`` (default the 004 Fuzzy-PID id, one
@@ -31,6 +34,17 @@ id of paper 004 if registered, else its Fuzzy-PID id) with MOWOA at a reduced bu
 normalised by the tolerance values ``TOLERANCES``, constraints ``CONSTRAINTS``) and
 compares the selected solution with the defaults on held-out scenario seeds, by the
 Tchebycheff value under the target weights and the run's normalisation.
+``storage`` times ``StudyStore.record`` in the driver (CPU and wall time per trial of an
+``--env-ls`` outcome) for an SQLite file and a journal file in alternating rounds
+(``--rounds``, 40 trials each, held and flushed per round as ``Evaluations`` does per
+batch) and reports the median per-round CPU ratio.
+``lockstep`` runs the same MOWOA tuning of ``--env-ls`` (default ``Urban004-v0``, its
+default objectives, scenario seeds ``--ls-seeds``, algorithm seed 1) once per
+``--ls-runs`` entry ``BACKEND:STORAGE`` (``sqlite`` or ``journal`` files in a temporary
+folder), the entries in turn and their order reversed every round (``--ls-rounds``),
+and prints a markdown table: wall time, evaluations/s, main-process storage time per
+stored trial (``EvalStats.store_time_s`` over the trials written) and the selected
+point, which must be the same in every run.
 """
 
 from __future__ import annotations
@@ -148,7 +162,12 @@ def bench_persistence(pop: int, iters: int, n_var: int = 7) -> dict:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     out: dict = {"pop": pop, "iters": iters, "n_var": n_var, "loadavg": _load()}
     with tempfile.TemporaryDirectory() as tmp:
-        for label, storage in (("memory", None), ("sqlite", f"sqlite:///{tmp}/bench.db")):
+        stores = (
+            ("memory", None),
+            ("sqlite", f"sqlite:///{tmp}/bench.db"),
+            ("journal", f"journal:{tmp}/bench.log"),
+        )
+        for label, storage in stores:
             prob = PymooTaskProblem(get_problem("zdt1", n_var=n_var))
             t0 = time.perf_counter()
             r = tune(prob, "mowoa", pop, iters, backend="serial", storage=storage, study=label)
@@ -166,6 +185,124 @@ def bench_persistence(pop: int, iters: int, n_var: int = 7) -> dict:
                 f"{out[label]['checkpoint_ms_per_gen']:.1f} ms per checkpoint (generation), "
                 f"run {wall:.1f} s"
             )
+    return out
+
+
+# ------------------------------------------------------------------- storage
+def bench_storage(env_id: str, rounds: int, n: int = 40) -> dict:
+    """Driver time of ``StudyStore.record`` per trial, SQLite and journal in turn."""
+    import optuna
+
+    from tuners.problem import EnvTuningProblem
+    from tuners.storage import StudyStore
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    prob = EnvTuningProblem(env_id)
+    rng = np.random.default_rng(0)
+    cols = [*prob.objective_columns, *[c for c, _ in prob.constraints]]
+    out: dict = {"env": env_id, "trials_per_round": n, "loadavg_start": _load()}
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = {"fingerprint": prob.fingerprint_hash()}
+        stores = {
+            "sqlite": StudyStore(f"sqlite:///{tmp}/s.db", "s", prob, cfg),
+            "journal": StudyStore(f"journal:{tmp}/s.log", "s", prob, cfg),
+        }
+        times: dict[str, list] = {k: [] for k in stores}
+        try:
+            for rnd in range(rounds):
+                for name in stores if rnd % 2 == 0 else list(stores)[::-1]:
+                    st = stores[name]
+                    X = rng.uniform(-1, 1, (n, prob.n_var))
+                    outs = [
+                        {"F": rng.random(prob.n_obj).tolist(), "G": [-0.1],
+                         "metrics": {c: [float(rng.random())] for c in cols},
+                         "wall_time_s": 0.05, "worker": "bench:0"}
+                        for _ in range(n)
+                    ]  # fmt: skip
+                    c0, w0 = time.process_time(), time.perf_counter()
+                    st.hold()  # as Evaluations does per batch
+                    for i, x in enumerate(X):
+                        st.record(prob, prob.key(x), x, outs[i], rnd, i)
+                    st.flush()
+                    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+                    times[name].append((1e3 * cpu / n, 1e3 * wall / n))
+        finally:
+            for st in stores.values():
+                st.close()
+    out["loadavg_end"] = _load()
+    print(f"\nstorage per trial ({env_id} outcome, {n} trials x {rounds} rounds, "
+          f"load {out['loadavg_start']} -> {out['loadavg_end']})\n")  # fmt: skip
+    print("| storage | CPU ms/trial (median) | wall ms/trial (median) | per round (CPU) |")
+    print("|---|---|---|---|")
+    for name, t in times.items():
+        cpu = [a for a, _ in t]
+        wall = [b for _, b in t]
+        out[name] = {"cpu_ms": cpu, "wall_ms": wall}
+        print(f"| {name} | {np.median(cpu):.2f} | {np.median(wall):.2f} | "
+              f"{', '.join(f'{v:.2f}' for v in cpu)} |")  # fmt: skip
+    ratio = np.median(np.array(out["sqlite"]["cpu_ms"]) / np.array(out["journal"]["cpu_ms"]))
+    out["cpu_ratio_sqlite_over_journal"] = float(ratio)
+    print(f"\nmedian CPU ratio sqlite / journal per round: {ratio:.1f}")
+    return out
+
+
+# ------------------------------------------------------------------ lockstep
+def bench_lockstep(
+    env_id: str, pop: int, iters: int, workers: int, seeds, runs, rounds: int = 1
+) -> dict:
+    import optuna
+
+    from tuners.run import tune
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    out: dict = {"env": env_id, "pop": pop, "iters": iters, "workers": workers,
+                 "seeds": list(seeds), "loadavg_start": _load(), "runs": []}  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        for rnd in range(rounds):
+            for k, run in enumerate(runs if rnd % 2 == 0 else runs[::-1]):
+                backend, storage = run.split(":")
+                stem = f"{tmp}/r{rnd}-{k}"
+                url = {"sqlite": f"sqlite:///{stem}.db", "journal": f"journal:{stem}.log"}
+                url = url.get(storage)
+                t0 = time.perf_counter()
+                r = tune(env_id, "mowoa", pop, iters, backend=backend, workers=workers,
+                         storage=url, study="ls", seeds=list(seeds), seed=1)  # fmt: skip
+                wall = time.perf_counter() - t0
+                st = r.stats
+                stored = st.run + st.failed_attempts
+                out["runs"].append(
+                    {
+                        "round": rnd,
+                        "run": run,
+                        "wall_s": wall,
+                        "evaluations": st.run,
+                        "evals_per_s": st.run / wall,
+                        "store_ms_per_trial": 1e3 * st.store_time_s / max(stored, 1),
+                        "checkpoint_ms_per_gen": 1e3 * st.checkpoint_time_s / iters,
+                        "selected_key": None if r.selected is None else r.selected["key"],
+                        "selected": r.selected_params,
+                    }
+                )
+                print(f"[lockstep] round {rnd} {run}: {wall:.1f} s, {st.run} evaluations",
+                      flush=True)  # fmt: skip
+    out["loadavg_end"] = _load()
+    keys = {r["selected_key"] for r in out["runs"]}
+    out["same_selected"] = len(keys) == 1
+    print(
+        f"\n{env_id}: MOWOA {pop} x {iters}, {workers} workers, scenario seeds {list(seeds)}; "
+        f"load {out['loadavg_start']} -> {out['loadavg_end']}\n"
+    )
+    print("| round | backend:storage | wall [s] | evaluations | evals/s | storage [ms/trial] "
+          "| checkpoint [ms/gen] | selected point |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|")
+    for r in out["runs"]:
+        sel = ", ".join(f"{n}={v:.4g}" for n, v in (r["selected"] or {}).items())
+        print(
+            f"| {r['round']} | {r['run']} | {r['wall_s']:.1f} | {r['evaluations']} | "
+            f"{r['evals_per_s']:.1f} | {r['store_ms_per_trial']:.2f} | "
+            f"{r['checkpoint_ms_per_gen']:.1f} | {r['selected_key']} ({sel}) |"
+        )
+    print(f"\nsame selected point in every run: {'yes' if out['same_selected'] else 'NO'}")
     return out
 
 
@@ -358,7 +495,17 @@ def bench_compare004(env_id: str, pop: int, iters: int, workers: int, seeds, tra
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
-        "part", choices=["speed", "persistence", "convergence", "tune004", "compare004", "all"]
+        "part",
+        choices=[
+            "speed",
+            "persistence",
+            "storage",
+            "convergence",
+            "tune004",
+            "compare004",
+            "lockstep",
+            "all",
+        ],  # fmt: skip
     )
     ap.add_argument("--env", default="TrainEnvs/Urban004FuzzyPID-v0")
     ap.add_argument("--n", type=int, default=12, help="evaluations of the speed benchmark")
@@ -373,12 +520,33 @@ def main() -> None:
     ap.add_argument("--holdout", type=int, nargs="+", default=[100, 101, 102, 103, 104])
     ap.add_argument("--db", default="sqlite:///out/bench_tuners.db")
     ap.add_argument("--json", default=None, help="write the results to this JSON file")
+    ap.add_argument("--env-ls", default="TrainEnvs/Urban004-v0", help="env of `lockstep`")
+    ap.add_argument("--ls-seeds", type=int, nargs="+", default=[0], help="its scenario seeds")
+    ap.add_argument(
+        "--ls-runs",
+        nargs="+",
+        default=["processes:sqlite", "lockstep:sqlite", "lockstep:journal"],
+        help="BACKEND:STORAGE per run of `lockstep` (storage sqlite, journal or memory)",
+    )
+    ap.add_argument("--ls-rounds", type=int, default=1, help="rounds of `lockstep`")
+    ap.add_argument("--quick", action="store_true", help="`lockstep` at 10 x 4 instead of 40 x 100")
+    ap.add_argument(
+        "--ls-budget", type=int, nargs=2, default=None, metavar=("POP", "ITERS"),
+        help="`lockstep` at this population and number of generations",
+    )  # fmt: skip
     args = ap.parse_args()
     res: dict = {}
     if args.part in ("speed", "all"):
         res["speed"] = bench_speed(args.env, args.n, args.workers, args.rounds)
     if args.part in ("persistence", "all"):
         res["persistence"] = bench_persistence(20, 10, args.n_var)
+    if args.part in ("storage", "all"):
+        res["storage"] = bench_storage(args.env_ls, args.rounds)
+    if args.part in ("lockstep", "all"):
+        pop, iters = args.ls_budget or ((10, 4) if args.quick else (40, 100))
+        res["lockstep"] = bench_lockstep(
+            args.env_ls, pop, iters, args.workers, args.ls_seeds, args.ls_runs, args.ls_rounds
+        )
     if args.part in ("convergence", "all"):
         res["convergence"] = bench_convergence(args.seeds, 40, 100)
     if args.part in ("tune004", "all"):

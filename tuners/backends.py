@@ -1,12 +1,15 @@
-"""Evaluation backends (serial, processes, Dask) and the batch evaluator with cache.
+"""Evaluation backends (serial, processes, lockstep, Dask) and the batch evaluator.
 
 One setting picks where the closed-loop episodes run:
 
 * ``"serial"`` — in the driver process, one after the other;
-* ``"processes"`` (default) — a :class:`~concurrent.futures.ProcessPoolExecutor` with the
+* ``"processes"`` — a :class:`~concurrent.futures.ProcessPoolExecutor` with the
   *spawn* start method (safe with threads, BLAS and the notebook), ``workers`` processes
   (default: all cores) with one BLAS/OpenMP thread each; the pool lives for the whole
   run;
+* ``"lockstep"`` — the same pool, each worker evaluating one chunk of the batch in one
+  :func:`train_envs.envs.batch.evaluate_env_params_batch` call (:class:`LockstepBackend`);
+  :func:`tuners.run.tune`'s default where the env's controller batches;
 * ``"dask"`` — a Dask distributed cluster: ``address`` of a running scheduler
   (``tcp://host:8786``; the workers need this package installed), an existing
   ``client``, or, with neither, a :class:`distributed.LocalCluster` of ``workers``
@@ -32,7 +35,8 @@ Failure accounting — an evaluation fails only by its own error:
 :class:`Evaluations` is what a :class:`tuners.problem.TaskProblem` calls per batch: it
 answers points already evaluated (same problem fingerprint and bit-identical x) from
 its cache — loaded from the study when resuming — runs the rest on the backend, and
-writes every finished evaluation to the store as soon as it finishes. If every
+writes every finished evaluation to the store as soon as it finishes (a journal study
+makes the batch's writes durable with one ``fsync`` at its end). If every
 evaluation fails before any has ever succeeded (a misconfiguration: unknown metric,
 unimportable env, a script without the ``if __name__ == "__main__":`` guard that the
 spawn start method needs), it raises instead of filling the study with failures.
@@ -55,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from tuners.problem import ConfigError, TaskProblem, run_task
+from tuners.problem import ConfigError, TaskProblem, finish_outcome, run_task
 
 OnResult = Callable[[int, dict[str, Any]], None]
 OnError = Callable[[int, int, str, bool], None]
@@ -66,9 +70,13 @@ __all__ = [
     "DaskBackend",
     "Evaluations",
     "Failure",
+    "LockstepBackend",
+    "PointError",
     "ProcessBackend",
     "SerialBackend",
+    "default_backend",
     "make_backend",
+    "run_chunk",
 ]
 
 
@@ -253,6 +261,10 @@ class ProcessBackend(Backend):
         self._pool = None
         self.restarts += 1
 
+    def _groups(self, tasks: Sequence[Any], batch: list[int]) -> list[list[int]]:
+        """The task indices of ``batch`` submitted together: here one task each."""
+        return [[i] for i in batch]
+
     def run(self, tasks, on_result=None, on_error=None):
         results: list[Any] = [None] * len(tasks)
         attempts = [0] * len(tasks)
@@ -262,50 +274,62 @@ class ProcessBackend(Backend):
             suspects = [i for i in todo if breaks[i] >= 2]
             batch = suspects[:1] if suspects else todo  # a suspect runs alone
             pool = self._get_pool()
-            futures: dict[cf.Future, int] = {}
+            futures: dict[cf.Future, list[int]] = {}
             try:
-                for i in batch:
-                    futures[pool.submit(run_task, tasks[i])] = i
+                for group in self._groups(tasks, batch):
+                    if len(group) == 1:
+                        fut = pool.submit(run_task, tasks[group[0]])
+                    else:
+                        fut = pool.submit(run_chunk, [tasks[i] for i in group])
+                    futures[fut] = group
                 broken = False
             except BrokenProcessPool:
                 broken = True  # submitted ones fail below; the rest stay in ``todo``
             retry: list[int] = []
             died: list[int] = []
             pending = set(futures)
+
+            def failed(i: int, err: str, retry: list[int] = retry) -> None:
+                if self._failed(i, attempts, err, on_error):
+                    retry.append(i)
+                else:
+                    results[i] = Failure(err, attempts[i])
+
             try:
                 while pending:
                     done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
-                    for fut in sorted(done, key=lambda f: futures[f]):
-                        i = futures[fut]
+                    for fut in sorted(done, key=lambda f: futures[f][0]):
+                        group = futures[fut]
                         exc = fut.exception()
                         if exc is None:
-                            results[i] = fut.result()
-                            if on_result is not None:
-                                on_result(i, results[i])
+                            out = fut.result()
+                            items = out if len(group) > 1 else [out]
+                            for i, item in zip(group, items, strict=True):
+                                if isinstance(item, PointError):
+                                    failed(i, item.error)
+                                    continue
+                                results[i] = item
+                                if on_result is not None:
+                                    on_result(i, item)
                         elif isinstance(exc, BrokenProcessPool):
                             broken = True
-                            died.append(i)
+                            died.extend(group)
                         elif isinstance(exc, FATAL_ERRORS):
                             raise exc
-                        elif self._failed(i, attempts, _describe(exc), on_error):
-                            retry.append(i)
-                        else:
-                            results[i] = Failure(_describe(exc), attempts[i])
+                        else:  # a single task's own error (a chunk reports its members')
+                            for i in group:
+                                failed(i, _describe(exc))
             except BaseException:
                 self.terminate()
                 raise
             if suspects and died:  # a suspect alone in the pool: its own failure
                 (i,) = died
-                err = "worker process died while running this evaluation alone"
-                if self._failed(i, attempts, err, on_error):
-                    retry.append(i)
-                else:
-                    results[i] = Failure(err, attempts[i])
+                failed(i, "worker process died while running this evaluation alone")
             else:
                 for i in died:
                     breaks[i] += 1
                     retry.append(i)
-            submitted = set(futures.values())
+            submitted = {i for group in futures.values() for i in group}
             todo = sorted(retry + [i for i in todo if i not in submitted])
             if broken:
                 self._restart()
@@ -328,6 +352,80 @@ class ProcessBackend(Backend):
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+
+
+@dataclass(frozen=True)
+class PointError:
+    """A member of a chunk that raised (its chunk-mates' outcomes stand)."""
+
+    error: str
+
+
+def run_chunk(tasks: Sequence[Any]) -> list[dict[str, Any] | PointError]:
+    """Evaluate tasks sharing a ``batch_key`` in one ``run_batch`` call (in a worker).
+
+    Returns one item per task: its outcome (as :func:`~tuners.problem.run_task` gives
+    it; the wall time is the chunk's divided evenly) or a :class:`PointError`. If the
+    batch call raises, each task runs alone, so only the tasks that fail by themselves
+    fail. A fatal error (:data:`FATAL_ERRORS`) is raised.
+    """
+    t0 = time.perf_counter()
+    try:
+        raw = type(tasks[0]).run_batch(tasks)
+    except FATAL_ERRORS:
+        raise
+    except Exception:  # noqa: BLE001 - which member failed is found by running each alone
+        raw = None
+    out: list[dict[str, Any] | PointError] = []
+    if raw is None:
+        for task in tasks:
+            try:
+                out.append(run_task(task))
+            except FATAL_ERRORS:
+                raise
+            except Exception as exc:  # noqa: BLE001 - the member's own error
+                out.append(PointError(_describe(exc)))
+        return out
+    share = (time.perf_counter() - t0) / len(tasks)
+    for item in raw:
+        try:
+            out.append(finish_outcome(item, share))
+        except Exception as exc:  # noqa: BLE001 - a non-finite value of this member
+            out.append(PointError(_describe(exc)))
+    return out
+
+
+class LockstepBackend(ProcessBackend):
+    """The process pool, each worker evaluating its share of a batch in one call.
+
+    Tasks with the same ``batch_key()`` (env tasks of an env whose controller batches:
+    :func:`train_envs.envs.batch.supports_batch`) are split into one contiguous chunk
+    per worker, run by :func:`run_chunk`; other tasks (``batch_key`` None or absent,
+    such as pymoo problems) are submitted one by one as with ``"processes"``. Failure
+    accounting is the pool's: a member that raises is charged alone and retried in a
+    later chunk; a worker death re-submits, uncharged, the members of every chunk in
+    flight (finished chunks keep their outcomes); a member in flight at two deaths runs
+    alone.
+    """
+
+    name = "lockstep"
+
+    def _groups(self, tasks: Sequence[Any], batch: list[int]) -> list[list[int]]:
+        keyed: dict[Any, list[int]] = {}
+        groups: list[list[int]] = []
+        for i in batch:
+            key_fn = getattr(tasks[i], "batch_key", None)
+            key = key_fn() if key_fn is not None else None
+            if key is None:
+                groups.append([i])
+            else:
+                keyed.setdefault(key, []).append(i)
+        for members in keyed.values():
+            n = min(self.workers, len(members))
+            groups.extend(
+                [int(i) for i in chunk] for chunk in np.array_split(np.asarray(members), n)
+            )
+        return sorted(groups)
 
 
 class DaskBackend(Backend):
@@ -420,7 +518,7 @@ class DaskBackend(Backend):
             self._cluster = None
 
 
-BACKENDS = ("serial", "processes", "dask")
+BACKENDS = ("serial", "processes", "lockstep", "dask")
 
 
 def make_backend(
@@ -431,14 +529,29 @@ def make_backend(
     client: Any = None,
     max_retries: int = 2,
 ) -> Backend:
-    """The backend for a setting: ``"serial"``, ``"processes"`` or ``"dask"``."""
+    """The backend for a setting: ``"serial"``, ``"processes"``, ``"lockstep"`` or ``"dask"``."""
     if kind == "serial":
         return SerialBackend(max_retries=max_retries)
     if kind == "processes":
         return ProcessBackend(workers=workers, max_retries=max_retries)
+    if kind == "lockstep":
+        return LockstepBackend(workers=workers, max_retries=max_retries)
     if kind == "dask":
         return DaskBackend(address=address, client=client, workers=workers, max_retries=max_retries)
     raise ValueError(f"backend must be one of {BACKENDS}, got {kind!r}")
+
+
+def default_backend(problem: TaskProblem) -> str:
+    """``"lockstep"`` for an env problem whose controller batches
+    (:func:`train_envs.envs.batch.supports_batch`: PID, Fuzzy-PID, DMC), else
+    ``"processes"`` (other envs, pymoo problems)."""
+    env_id = getattr(problem, "env_id", None)
+    if isinstance(env_id, str) and hasattr(problem, "config"):
+        from train_envs.envs.batch import supports_batch
+
+        if supports_batch(env_id, problem.config):
+            return "lockstep"
+    return "processes"
 
 
 @dataclass
@@ -519,6 +632,27 @@ class Evaluations:
             if self.store is not None and not final:  # a final failure is record()ed
                 self.store.record_failure(problem, keys[i], X[i], error, attempt, generation, i)
 
+        if self.store is not None:
+            self.store.hold()  # a journal study: the batch's writes go out in one append
+        try:
+            self._run(problem, tasks, on_result, on_error, record)
+        finally:
+            if self.store is not None:  # also on Ctrl-C: keep what finished
+                ts = time.perf_counter()
+                self.store.flush()
+                self.stats.store_time_s += time.perf_counter() - ts
+        self.stats.batch_time_s += time.perf_counter() - t0
+        return [self.cache[k] for k in keys]
+
+    def _run(
+        self,
+        problem: TaskProblem,
+        tasks: list[Any],
+        on_result: OnResult,
+        on_error: OnError,
+        record: Callable[[int, dict[str, Any]], None],
+    ) -> None:
+        """Run ``tasks`` on the backend; record the ones that failed for good."""
         restarts = getattr(self.backend, "restarts", 0)
         results = self.backend.run(tasks, on_result=on_result, on_error=on_error)
         deaths = getattr(self.backend, "restarts", 0) - restarts
@@ -543,5 +677,3 @@ class Evaluations:
                 outcome = problem.failure_outcome(res.error)
                 outcome["attempts"] = res.attempts
                 record(j, outcome)
-        self.stats.batch_time_s += time.perf_counter() - t0
-        return [self.cache[k] for k in keys]

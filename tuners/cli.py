@@ -72,13 +72,17 @@ def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
     )
     p.add_argument(
         "--backend",
-        default="processes",
-        choices=["serial", "processes", "dask"],
-        help="where evaluations run (default processes)",
+        default=None,
+        choices=["serial", "processes", "lockstep", "dask"],
+        help="where evaluations run (default: lockstep for envs whose controller batches "
+        "- PID, Fuzzy-PID, DMC -, else processes)",
     )
     p.add_argument("--dask-address", default=None, help="Dask scheduler, e.g. tcp://host:8786")
     p.add_argument(
-        "--storage", default=DEFAULT_STORAGE, help=f"Optuna storage URL (default {DEFAULT_STORAGE})"
+        "--storage",
+        default=DEFAULT_STORAGE,
+        help=f"Optuna storage URL (default {DEFAULT_STORAGE}) or journal:PATH (an Optuna "
+        "journal file: cheapest writes, a generation's evaluations written at once)",
     )
     p.add_argument(
         "--study",

@@ -24,7 +24,8 @@
   ``F = G = fail_value`` (1e10): infeasible, never selected, and the run goes on.
 
 Each point becomes a picklable task (:class:`EnvTask`) run by :func:`run_task` in the
-current process or a worker; :class:`TaskProblem` hands a whole batch to its
+current process or a worker (tasks of one env several at once by
+:meth:`EnvTask.run_batch`: the lockstep backend); :class:`TaskProblem` hands a whole batch to its
 ``runner`` (:class:`tuners.backends.Evaluations`: cache, backend, storage) when one is
 attached, else runs the tasks serially here. :class:`PymooTaskProblem` wraps any pymoo
 problem (ZDT1, a sphere, ...) the same way, for tests and benchmarks.
@@ -32,6 +33,7 @@ problem (ZDT1, a sphere, ...) the same way, for tests and benchmarks.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -69,6 +71,7 @@ __all__ = [
     "PymooTaskProblem",
     "TaskProblem",
     "ConfigError",
+    "finish_outcome",
     "metric_columns",
     "objective_column",
     "run_task",
@@ -100,13 +103,27 @@ def run_task(task: Any) -> dict[str, Any]:
     """
     t0 = time.perf_counter()
     out = dict(task.run())
+    return finish_outcome(out, time.perf_counter() - t0)
+
+
+def finish_outcome(out: Mapping[str, Any], wall_time_s: float) -> dict[str, Any]:
+    """A task's raw outcome as :func:`run_task` returns it: ``F``/``G`` as plain floats
+    (``ValueError`` if one is not finite), the wall time and the worker."""
+    out = dict(out)
     out["F"] = [float(v) for v in out["F"]]
     out["G"] = [float(v) for v in out.get("G", [])]
     if not all(math.isfinite(v) for v in out["F"] + out["G"]):
         raise ValueError(f"task returned a non-finite objective or constraint: {out}")
-    out["wall_time_s"] = time.perf_counter() - t0
+    out["wall_time_s"] = float(wall_time_s)
     out["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     return out
+
+
+@functools.lru_cache(maxsize=64)
+def _env_batches(env_id: str, config_json: str) -> bool:
+    from train_envs.envs.batch import supports_batch
+
+    return supports_batch(env_id, json.loads(config_json))
 
 
 # ------------------------------------------------------------------------ tasks
@@ -140,6 +157,34 @@ class EnvTask:
             label="tuner",
             reuse_env=True,
         )
+        return self.outcome(df)
+
+    def batch_key(self) -> tuple[Any, ...] | None:
+        """What the tasks of one lockstep batch share (all but the parameters), or None
+        if the env's controller does not batch (:func:`train_envs.envs.batch.supports_batch`)."""
+        if not _env_batches(self.env_id, self.config_json):
+            return None
+        rest = (self.seeds, self.config_json, self.objectives, self.constraints)
+        return (type(self).__qualname__, self.env_id, *rest)
+
+    @classmethod
+    def run_batch(cls, tasks: Sequence[EnvTask]) -> list[dict[str, Any]]:
+        """Raw outcomes of tasks sharing a :meth:`batch_key`, evaluated in one
+        :func:`train_envs.envs.batch.evaluate_env_params_batch` call."""
+        import train_envs  # noqa: F401  (registers the ids in a fresh worker)
+        from train_envs.envs.batch import evaluate_env_params_batch
+
+        first = tasks[0]
+        frames = evaluate_env_params_batch(
+            first.env_id,
+            [dict(t.params) for t in tasks],
+            seeds=list(first.seeds),
+            config=json.loads(first.config_json),
+        )
+        return [t.outcome(df) for t, df in zip(tasks, frames, strict=True)]
+
+    def outcome(self, df: Any) -> dict[str, Any]:
+        """``F``, ``G`` and per-seed ``metrics`` of an episode table of this task."""
         cols = list(self.objectives) + [c for c, _ in self.constraints]
         missing = [c for c in cols if c not in df.columns]
         if missing:

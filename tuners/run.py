@@ -46,7 +46,7 @@ import pandas as pd
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.callback import Callback
 
-from tuners.backends import EvalStats, Evaluations, make_backend
+from tuners.backends import EvalStats, Evaluations, default_backend, make_backend
 from tuners.checkpoint import generations_done, replay, set_iters
 from tuners.mowoa import (
     MOWOA,
@@ -149,6 +149,7 @@ class TuneResult:
             (scale = nadir − ideal); normalization: how it was chosen (:func:`summarize`).
         pymoo_result: pymoo's ``Result`` (``res.X``, ``res.F``, ``res.opt``, ...).
         stats: evaluation counters (run, cached, failures, times).
+        backend: the evaluation backend that ran (``""`` for a loaded result).
     """
 
     study_name: str
@@ -166,6 +167,7 @@ class TuneResult:
     pymoo_result: Any = None
     stats: EvalStats = field(default_factory=EvalStats)
     wall_time_s: float = 0.0
+    backend: str = ""
 
     @property
     def selected_params(self) -> dict[str, float] | None:
@@ -308,7 +310,7 @@ def tune(
     iters: int | None = None,
     *,
     workers: int | None = None,
-    backend: str = "processes",
+    backend: str | None = None,
     dask_address: str | None = None,
     dask_client: Any = None,
     storage: str | Any | None = DEFAULT_STORAGE,
@@ -345,8 +347,11 @@ def tune(
         algo: ``mowoa`` | ``pso`` | ``mopso`` | ``nsga2`` | ``moead`` [mowoa].
         pop, iters: population size [40] and generations incl. the initial one [100].
         workers, backend, dask_address, dask_client: evaluation backend
-            (``serial`` | ``processes`` | ``dask``; workers default: all cores).
-        storage: Optuna storage URL (default ``sqlite:///tuning.db``); None = in memory.
+            (``serial`` | ``processes`` | ``lockstep`` | ``dask``; default
+            :func:`tuners.backends.default_backend`: ``lockstep`` for an env whose
+            controller batches, else ``processes``; workers default: all cores).
+        storage: Optuna storage URL (default ``sqlite:///tuning.db``), or
+            ``journal:PATH`` (:func:`tuners.storage.open_storage`); None = in memory.
         study: study name (default ``<env>-<algo>-s<seed>``).
         resume: ``True``: continue the study (an error if it holds no run);
             ``"auto"``: continue it if it holds one, else start it; ``False``: start it
@@ -510,7 +515,11 @@ def tune(
             f_bounds,
             storage,
             backend=make_backend(
-                backend, workers, address=dask_address, client=dask_client, max_retries=max_retries
+                backend or default_backend(problem),
+                workers,
+                address=dask_address,
+                client=dask_client,
+                max_retries=max_retries,
             ),
             progress=progress,
             callback=callback,
@@ -625,6 +634,7 @@ def _run(
     )
     out.pymoo_result = res
     out.stats = evals.stats
+    out.backend = be.name
     out.wall_time_s = time.perf_counter() - t_start
     return out
 

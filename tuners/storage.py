@@ -1,8 +1,9 @@
 """Persistence of a tuning run in an Optuna study: evaluations, checkpoints, resume.
 
 Layout of the study (any Optuna RDB storage: an SQLite file — ``sqlite:///tuning.db`` is
-:func:`tuners.run.tune`'s default —, a PostgreSQL/MySQL URL, or in memory), readable by
-``optuna-dashboard sqlite:///tuning.db``:
+:func:`tuners.run.tune`'s default —, a PostgreSQL/MySQL URL; ``journal:PATH``, Optuna's
+journal file, whose writes cost the driver ~50× less CPU (:class:`JournalStudyStorage`);
+or in memory), readable by ``optuna-dashboard sqlite:///tuning.db`` (or ``PATH``):
 
 * directions: ``minimize`` for every objective; ``study.metric_names`` = objective names;
 * study user attr ``tuner_config``: the run settings (:mod:`tuners.settings`);
@@ -35,6 +36,7 @@ from __future__ import annotations
 import datetime
 import hashlib
 import json
+import os
 import time
 import warnings
 from collections.abc import Mapping
@@ -45,6 +47,9 @@ import numpy as np
 import optuna
 import pandas as pd
 from optuna.distributions import FloatDistribution
+from optuna.storages import JournalStorage
+from optuna.storages.journal import JournalFileBackend
+from optuna.storages.journal._file import get_lock_file
 from optuna.study._constrained_optimization import _CONSTRAINTS_KEY
 from optuna.trial import TrialState
 
@@ -55,6 +60,7 @@ CONFIG_ATTR = "tuner_config"
 TRIAL_ATTR = "tuner"  # one packed user attr per trial (each attr is a DB row: ~2 ms)
 CHECKPOINT_META = "tuner:checkpoint"
 CHECKPOINT_SCHEMA = 2
+JOURNAL_PREFIX = "journal:"  # storage "journal:PATH": Optuna's journal file at PATH
 LEGACY_CHUNK_PREFIX = "tuner:ckpt:"  # pickled algorithm chunks: refused, never loaded
 CODE_HISTORY_ATTR = "tuner_code_history"  # code fingerprints of a run resumed across versions
 #: packages whose code and data decide what an evaluation returns
@@ -94,6 +100,8 @@ def code_fingerprint() -> str:
 
 __all__ = [
     "CHECKPOINT_SCHEMA",
+    "JOURNAL_PREFIX",
+    "JournalStudyStorage",
     "StudyExistsError",
     "StudyLockedError",
     "StudyStore",
@@ -113,7 +121,9 @@ class StudyExistsError(ValueError):
 
 
 def _sqlite_path(url: str) -> Path | None:
-    """The database file of an ``sqlite:///`` URL (None: in memory or not SQLite)."""
+    """The file of an ``sqlite:///`` URL or a ``journal:PATH`` (None: in memory or a server)."""
+    if url.startswith(JOURNAL_PREFIX):
+        return Path(url[len(JOURNAL_PREFIX) :])
     if not url.startswith("sqlite:"):
         return None
     rest = url.split(":///", 1)[1] if ":///" in url else ""
@@ -121,14 +131,74 @@ def _sqlite_path(url: str) -> Path | None:
     return None if rest in ("", ":memory:") else Path(rest)
 
 
+class _HeldJournalFile(JournalFileBackend):
+    """An Optuna journal file whose ``fsync`` can be held: between :meth:`hold` and
+    :meth:`flush` each append is written (under the file's lock) and handed to the
+    operating system at once, and made durable by one ``fsync`` at :meth:`flush`."""
+
+    def __init__(self, path: str) -> None:
+        super().__init__(path)
+        self._holding = False
+        self._unsynced = False
+
+    def append_logs(self, logs: list[dict[str, Any]]) -> None:
+        if not self._holding:
+            super().append_logs(logs)
+            return
+        text = "".join(json.dumps(log, separators=(",", ":")) + "\n" for log in logs)
+        with get_lock_file(self._lock), open(self._file_path, "ab") as f:
+            f.write(text.encode("utf-8"))
+        self._unsynced = True
+
+    def hold(self) -> None:
+        """Append without ``fsync`` until :meth:`flush`."""
+        self._holding = True
+
+    def flush(self) -> None:
+        """``fsync`` what was appended since :meth:`hold` and stop holding."""
+        self._holding = False
+        if self._unsynced:
+            fd = os.open(self._file_path, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            self._unsynced = False
+
+
+class JournalStudyStorage(JournalStorage):
+    """Optuna's journal storage on the file ``path`` (JSON lines, one per operation) with
+    the write lease (:mod:`tuners.lease`) in the SQLite file ``path + ".lease"`` beside it.
+
+    :meth:`hold` / :meth:`flush`: a batch's appends share one ``fsync``.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._file = _HeldJournalFile(str(self.path))
+        super().__init__(self._file)
+        import sqlalchemy
+
+        self.engine = sqlalchemy.create_engine(
+            f"sqlite:///{self.path}.lease", connect_args={"timeout": 60}
+        )
+
+    def hold(self) -> None:
+        self._file.hold()
+
+    def flush(self) -> None:
+        self._file.flush()
+
+
 def open_storage(
     storage: str | optuna.storages.BaseStorage | None, *, must_exist: bool = False
 ) -> optuna.storages.BaseStorage:
-    """An Optuna storage: ``None`` = in memory, a URL = RDB (SQLite waits for locks).
+    """An Optuna storage: ``None`` = in memory, ``journal:PATH`` = Optuna's journal file
+    (:class:`JournalStudyStorage`), any other URL = RDB (SQLite waits for locks).
 
-    ``must_exist``: an SQLite URL whose file is missing is a ``ValueError`` (readers such
-    as ``tune show`` never create a database). A URL that cannot be opened (unknown
-    scheme, not a database, a missing folder) is a ``ValueError`` naming it.
+    ``must_exist``: an SQLite URL or journal whose file is missing is a ``ValueError``
+    (readers such as ``tune show`` never create one). A URL that cannot be opened
+    (unknown scheme, not a database, a missing folder) is a ``ValueError`` naming it.
     """
     if storage is None:
         return optuna.storages.InMemoryStorage()
@@ -141,6 +211,13 @@ def open_storage(
             raise ValueError(f"storage {url}: no database file {path}")
         if not path.parent.is_dir():
             raise ValueError(f"storage {url}: folder {path.parent} does not exist")
+    if url.startswith(JOURNAL_PREFIX):
+        if path is None or path.is_dir() or not path.name:
+            raise ValueError(f"storage {url!r}: journal:PATH needs a file path")
+        try:
+            return JournalStudyStorage(path)
+        except (ValueError, OSError, UnicodeDecodeError) as exc:
+            raise ValueError(f"storage {url!r} cannot be opened: {exc}") from exc
     kwargs: dict[str, Any] = {}
     if url.startswith("sqlite"):
         kwargs["engine_kwargs"] = {"connect_args": {"timeout": 60}}
@@ -492,8 +569,19 @@ class StudyStore:
         """The validated checkpoint metadata, or None if the study has none."""
         return read_checkpoint(self.storage, self.study_id, self.study_name)
 
+    def hold(self) -> None:
+        """Start holding the writes of a batch (journal storage; RDB writes stream)."""
+        if isinstance(self.storage, JournalStudyStorage):
+            self.storage.hold()
+
+    def flush(self) -> None:
+        """Write what :meth:`hold` kept back, in one append."""
+        if isinstance(self.storage, JournalStudyStorage):
+            self.storage.flush()
+
     def close(self) -> None:
-        """Release the write lease (idempotent)."""
+        """Write what is held and release the write lease (idempotent)."""
+        self.flush()
         if self.lease is not None:
             self.lease.release()
 

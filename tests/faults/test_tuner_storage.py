@@ -113,3 +113,55 @@ def test_interrupt_at_a_generation_boundary_then_resume_is_exact(tmp_path, algo)
     assert np.array_equal(resumed.pymoo_result.F, reference.pymoo_result.F)
     assert list(resumed.evaluations["key"]) == list(reference.evaluations["key"])
     assert resumed.stats.run == len(set(reference.evaluations["key"]) - before) > 0
+
+
+def test_journal_storage_is_json_lines_with_one_writer_and_resumes_exactly(tmp_path):
+    """``journal:PATH``: Optuna's journal file, JSON only; the lease refuses a second
+    writer; list, show, resume and delete work as on SQLite."""
+    import json
+
+    from tuners.run import show
+    from tuners.storage import (
+        StudyLockedError,
+        StudyStore,
+        delete_study,
+        list_studies,
+        load_study,
+        stored_run_config,
+    )
+
+    path = tmp_path / "runs.log"
+    url = f"journal:{path}"
+    first = tune(_zdt(), "mowoa", iters=2, storage=url, study="s", **KW)
+    lines = path.read_text().splitlines()
+    assert lines and all(isinstance(json.loads(line), dict) for line in lines)
+    trials = load_study("s", url).trials
+    assert len(trials) == len(first.evaluations) and (tmp_path / "runs.log.lease").is_file()
+    assert "generations done 2" in show("s", url)
+    _, cfg = stored_run_config("s", url)
+    holder = StudyStore(url, "s", _zdt(), cfg, resume=True)
+    try:
+        with pytest.raises(StudyLockedError, match="is being written by"):
+            tune(_zdt(), "mowoa", iters=3, storage=url, study="s", resume=True, **KW)
+    finally:
+        holder.close()
+    resumed = tune(_zdt(), "mowoa", iters=3, storage=url, study="s", resume=True, **KW)
+    reference = tune(_zdt(), "mowoa", iters=3, storage=None, study="r", **KW)
+    assert np.array_equal(resumed.pymoo_result.F, reference.pymoo_result.F)
+    assert list(resumed.evaluations["key"]) == list(reference.evaluations["key"])
+    assert list(list_studies(url)["study"]) == ["s"]
+    delete_study("s", url)
+    assert list_studies(url).empty
+
+
+def test_a_missing_journal_is_not_created_by_readers(tmp_path):
+    from tuners.storage import check_storage, open_storage, stored_run_config
+
+    url = f"journal:{tmp_path / 'none.log'}"
+    assert stored_run_config("s", url) == (False, None)
+    check_storage(url)
+    with pytest.raises(ValueError, match="no database file"):
+        open_storage(url, must_exist=True)
+    with pytest.raises(ValueError, match="does not exist"):
+        check_storage(f"journal:{tmp_path / 'no' / 'x.log'}")
+    assert not (tmp_path / "none.log").exists()
