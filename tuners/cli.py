@@ -27,6 +27,11 @@ from typing import Any
 
 from train_envs.cli_args import json_object, key_values, parse_seeds, writable_folder
 
+#: ``--algo`` choices (:data:`tuners.run.ALGORITHMS`, listed here so that the parser
+#: imports neither pymoo nor Optuna)
+ALGO_CHOICES = ("mowoa", "pso", "mopso", "nsga2", "moead")
+ALGO_CHOICES += ("optuna-tpe", "optuna-nsga2", "optuna-nsga3", "optuna-gp")
+
 __all__ = ["add_tune_parser", "cmd_delete", "cmd_list", "cmd_show", "cmd_tune", "write_outputs"]
 
 DEFAULT_STORAGE = "sqlite:///tuning.db"  # = tuners.run.DEFAULT_STORAGE (no heavy import)
@@ -60,8 +65,8 @@ def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
     p.add_argument(
         "--algo",
         default=None,
-        choices=["mowoa", "pso", "mopso", "nsga2", "moead"],
-        help="search algorithm (default mowoa)",
+        choices=ALGO_CHOICES,
+        help="search algorithm (default mowoa; optuna-*: Optuna's samplers)",
     )
     p.add_argument("--pop", type=int, default=None, help="population size (default 40)")
     p.add_argument(

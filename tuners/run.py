@@ -2,7 +2,9 @@
 
 A run = a :class:`tuners.problem.EnvTuningProblem` (or any
 :class:`~tuners.problem.TaskProblem`), a pymoo algorithm (``mowoa``, ``pso``,
-``mopso``, or pymoo's ``nsga2`` / ``moead`` as baselines), an evaluation backend
+``mopso``, pymoo's ``nsga2`` / ``moead`` as baselines, or an Optuna sampler
+``optuna-tpe`` / ``optuna-nsga2`` / ``optuna-nsga3`` / ``optuna-gp``:
+:mod:`tuners.optuna_samplers`), an evaluation backend
 (:mod:`tuners.backends`) and an Optuna study (:mod:`tuners.storage`). Each generation is
 one batch of evaluations; every finished evaluation is written to the study at once and
 a checkpoint (plain data) after every generation, so ``resume=True`` continues a killed
@@ -54,6 +56,7 @@ from tuners.mowoa import (
     nondominated,
     tchebycheff,
 )
+from tuners.optuna_samplers import OPTUNA_ALGORITHMS, OptunaSampler
 from tuners.problem import EnvTuningProblem, TaskProblem
 from tuners.pso import MOPSO, PSO
 from tuners.selection import (
@@ -73,7 +76,7 @@ from tuners.storage import (
     stored_run_config,
 )
 
-ALGORITHMS = ("mowoa", "pso", "mopso", "nsga2", "moead")
+ALGORITHMS = ("mowoa", "pso", "mopso", "nsga2", "moead", *OPTUNA_ALGORITHMS)
 #: algorithms with one weight vector per individual
 DECOMPOSITION = ("mowoa", "mopso", "moead")
 DEFAULT_STORAGE = "sqlite:///tuning.db"
@@ -110,6 +113,8 @@ def make_algorithm(
     """
     if algo in ("mowoa", "mopso", "moead") and problem.n_obj > 1:
         kwargs.setdefault("ref_dirs", run_weight_vectors(problem.n_obj, pop, target_weights))
+    if algo in OPTUNA_ALGORITHMS:
+        return OptunaSampler(algo, pop_size=pop, initial_X=initial_X, **kwargs)
     if algo == "mowoa":
         return MOWOA(pop_size=pop, initial_X=initial_X, **kwargs)
     if algo == "pso":
@@ -342,7 +347,8 @@ def tune(
         env_id: registered env id, or a ready :class:`TaskProblem` (then ``seeds``,
             ``objectives``, ``config``, ``params``, ``space``, ``constraints`` are unused);
             on resume of an env study ``None`` takes the stored env id.
-        algo: ``mowoa`` | ``pso`` | ``mopso`` | ``nsga2`` | ``moead`` [mowoa].
+        algo: ``mowoa`` | ``pso`` | ``mopso`` | ``nsga2`` | ``moead`` | an Optuna
+            sampler of :data:`tuners.optuna_samplers.OPTUNA_ALGORITHMS` [mowoa].
         pop, iters: population size [40] and generations incl. the initial one [100].
         workers, backend, dask_address, dask_client: evaluation backend
             (``serial`` | ``processes`` | ``dask``; workers default: all cores).
