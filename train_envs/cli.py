@@ -98,13 +98,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         )
         pngs.append(out / f"{stem}_adjustments.png")
         adj.savefig(pngs[-1], dpi=120)
-    table = pd.Series(res.metrics, name="value").to_frame()
-    with pd.option_context("display.float_format", "{:.6g}".format):
-        print(
-            f"Scenario {sc.name}, controller {args.controller}, seed {args.seed}, "
-            f"{len(res.df)} rows, {res.wall_time_s:.2f} s wall"
-        )
-        print(table.to_string())
+    from train_envs.labels import format_number
+
+    table = pd.Series({k: format_number(v, 6) for k, v in res.metrics.items()}, name="value")
+    print(
+        f"Scenario {sc.name}, controller {args.controller}, seed {args.seed}, "
+        f"{len(res.df)} rows, {res.wall_time_s:.2f} s wall"
+    )
+    print(table.to_frame().to_string())
     print(f"wrote {', '.join(map(str, pngs))} and {out / (stem + '.csv')}")
     return 0
 

@@ -312,9 +312,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
     print(show(res.study_name, args.storage))
     holdout = inp["holdout"]
     if holdout:
+        from train_envs.labels import format_table
+
         table = res.compare_on_seeds(holdout)
         print(f"Held-out seeds {holdout}:")
-        print(table.to_string(index=False))
+        bounds = dict(getattr(res.problem, "constraints", ()))
+        print(format_table(table, digits=5, bounds=bounds))
     if args.out:
         for f in write_outputs(res, args.out):
             print(f"wrote {f}")

@@ -48,6 +48,7 @@ import pandas as pd
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.callback import Callback
 
+from train_envs.labels import format_table
 from tuners.backends import EvalStats, Evaluations, make_backend
 from tuners.checkpoint import generations_done, replay, set_iters
 from tuners.mowoa import (
@@ -716,15 +717,14 @@ def show(study: str, storage: str = DEFAULT_STORAGE, max_rows: int = 50) -> str:
         f"target weights {np.round(r.target_weights, 4).tolist()}, "
         f"normalisation {r.normalization}",
     ]
-    with pd.option_context("display.float_format", "{:.5g}".format, "display.width", 200):
-        lines.append(f"Pareto set ({len(r.pareto)} solutions):")
-        if len(r.pareto):
-            lines.append(r.pareto[cols].head(max_rows).to_string(index=False))
-        if r.selected is not None:
-            lines.append("Selected (cosine similarity to the target weights):")
-            lines.append(r.selected[cols].to_frame().T.to_string(index=False))
-        dflt = df[df["is_default"]] if "is_default" in df else df.iloc[0:0]
-        if len(dflt):
-            lines.append("Defaults:")
-            lines.append(dflt[cols].to_string(index=False))
+    lines.append(f"Pareto set ({len(r.pareto)} solutions):")
+    if len(r.pareto):
+        lines.append(format_table(r.pareto[cols].head(max_rows), digits=5))
+    if r.selected is not None:
+        lines.append("Selected (cosine similarity to the target weights):")
+        lines.append(format_table(r.selected[cols].to_frame().T.infer_objects(), digits=5))
+    dflt = df[df["is_default"]] if "is_default" in df else df.iloc[0:0]
+    if len(dflt):
+        lines.append("Defaults:")
+        lines.append(format_table(dflt[cols], digits=5))
     return "\n".join(lines)
