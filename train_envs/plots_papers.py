@@ -10,6 +10,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.ticker import ScalarFormatter
 
 from train_envs.plotting import new_figure
 
@@ -113,6 +114,8 @@ def paper001_horizon_figure(table: pd.DataFrame) -> Figure:
     ax_e.axhline(50.0, color="red", lw=0.8, ls=":", label="±50 cm window")
     ax_e.set(xlabel="horizon N", ylabel="mean |stop error| [cm]", ylim=(0, None))
     ax_s.set(xlabel="horizon N", ylabel="command switches per run", yscale="log")
+    ax_s.yaxis.set_major_formatter(ScalarFormatter())
+    ax_s.yaxis.set_minor_formatter(ScalarFormatter())
     ax_e.set_title("stopping accuracy", fontsize=10)
     ax_s.set_title("command switches", fontsize=10)
     for ax in (ax_e, ax_s):
@@ -124,8 +127,9 @@ def paper001_horizon_figure(table: pd.DataFrame) -> Figure:
 
 def paper003_compensation_figure(runs: Mapping[str, pd.DataFrame], *, title: str = "") -> Figure:
     """Paper 003 Figs. 4–7 for its actuator cases against time: lead-car speed and
-    reference [km/h]; each case's speed minus the first case's (the ideal actuator) —
-    what compensation removes; the total actual force [kN]."""
+    reference [km/h]; each case's speed and total actual force minus the first case's
+    (the ideal actuator) — what compensation removes (the curves themselves coincide
+    at this scale)."""
     if not runs:
         raise ValueError("runs must contain at least one labelled DataFrame")
     ref = next(iter(runs.values()))
@@ -137,12 +141,15 @@ def paper003_compensation_figure(runs: Mapping[str, pd.DataFrame], *, title: str
         ax_v.plot(df["t_s"], df["v_mps"] * 3.6, **style)
         diff = (df["v_mps"].to_numpy()[:n] - ref["v_mps"].to_numpy()[:n]) * 3.6
         ax_d.plot(df["t_s"].to_numpy()[:n], diff, **style)
-        ax_u.plot(df["t_s"], df["u_N"] / 1e3, **style)
+        dF = (df["u_N"].to_numpy()[:n] - ref["u_N"].to_numpy()[:n]) / 1e3
+        ax_u.plot(df["t_s"].to_numpy()[:n], dF, **style)
     ax_v.set_ylabel("lead-car speed [km/h]")
     ax_v.legend(fontsize=8)
     ax_d.axhline(0.0, color="grey", lw=0.6)
     ax_d.set_ylabel(f"speed − {next(iter(runs))} [km/h]", fontsize=8)
-    ax_u.set(ylabel="total actual force [kN]", xlabel="time [s]")
+    ax_u.axhline(0.0, color="grey", lw=0.6)
+    ax_u.set_ylabel(f"force − {next(iter(runs))} [kN]", fontsize=8)
+    ax_u.set_xlabel("time [s]")
     for ax in (ax_v, ax_d, ax_u):
         ax.grid(alpha=0.3)
     if title:
