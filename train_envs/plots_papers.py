@@ -84,12 +84,7 @@ def multi_car_figure(df: pd.DataFrame, *, title: str = "") -> Figure:
     ax_c.plot(t, df["coupler_force_max_N"] / 1e3, lw=1.0, color="tab:red")
     ax_c.axhline(0.0, color="grey", lw=0.6)
     ax_c.set(ylabel="largest coupler force [kN]", xlabel="time [s]")
-    for ax in (ax_v, ax_u, ax_c):
-        ax.grid(alpha=0.3)
-    if title:
-        ax_v.set_title(title)
-    fig.tight_layout()
-    return fig
+    return _finish(fig, (ax_v, ax_u, ax_c), title)
 
 
 def paper001_horizon_figure(table: pd.DataFrame) -> Figure:
@@ -150,9 +145,14 @@ def paper003_compensation_figure(runs: Mapping[str, pd.DataFrame], *, title: str
     ax_u.axhline(0.0, color="grey", lw=0.6)
     ax_u.set_ylabel(f"force − {next(iter(runs))} [kN]", fontsize=8)
     ax_u.set_xlabel("time [s]")
-    for ax in (ax_v, ax_d, ax_u):
+    return _finish(fig, (ax_v, ax_d, ax_u), title)
+
+
+def _finish(fig: Figure, axes: tuple, title: str) -> Figure:
+    """Grid on every panel, ``title`` on the first, tight layout."""
+    for ax in axes:
         ax.grid(alpha=0.3)
     if title:
-        ax_v.set_title(title)
+        axes[0].set_title(title)
     fig.tight_layout()
     return fig

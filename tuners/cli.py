@@ -322,18 +322,32 @@ def cmd_tune(args: argparse.Namespace) -> int:
         for f in write_outputs(res, args.out):
             print(f"wrote {f}")
         if holdout and res.selected is not None:
-            from train_envs.plotting import speed_distance_figure
+            from train_envs.plotting import comparison_figure
 
             seed = holdout[0]
             runs = res.trajectories(seed)
             env_id = getattr(res.problem, "env_id", args.env)
-            fig = speed_distance_figure(
-                runs, title=f"{env_id}: defaults vs selected, held-out seed {seed}"
+            fig = comparison_figure(
+                runs,
+                title=f"{env_id}: defaults vs selected, held-out seed {seed}",
+                s_stop_m=_stop_of(env_id, getattr(res.problem, "config", None), seed),
             )
             path = Path(args.out) / f"{res.study_name.replace('/', '_')}_speed_distance.png"
             fig.savefig(path, dpi=110)
             print(f"wrote {path}")
     return 0
+
+
+def _stop_of(env_id: str, config: Any, seed: int) -> float | None:
+    """The stopping point of the env's episode ``seed`` (None for a cruise)."""
+    import gymnasium as gym
+
+    env = gym.make(env_id, config=config)
+    try:
+        env.reset(seed=seed)
+        return env.unwrapped.scenario.s_stop_m
+    finally:
+        env.close()
 
 
 def _study_name(name: str) -> str:
