@@ -24,7 +24,7 @@ def test_out_writes_the_table_and_the_figures_from_the_same_runs(tmp_path, monke
     assert "e-1" not in out  # no round-off noise printed for zeros
 
 
-@pytest.mark.parametrize("paper", ["paper000", "paper001", "paper002", "paper003"])
+@pytest.mark.parametrize("paper", ["paper000", "paper001", "paper002", "paper003", "paper004"])
 def test_every_reproduction_has_figures(paper):
     assert callable(get_figures(paper))
 
