@@ -98,26 +98,36 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         )
         pngs.append(out / f"{stem}_adjustments.png")
         adj.savefig(pngs[-1], dpi=120)
-    table = pd.Series(res.metrics, name="value").to_frame()
-    with pd.option_context("display.float_format", "{:.6g}".format):
-        print(
-            f"Scenario {sc.name}, controller {args.controller}, seed {args.seed}, "
-            f"{len(res.df)} rows, {res.wall_time_s:.2f} s wall"
-        )
-        print(table.to_string())
+    from train_envs.labels import format_number
+
+    table = pd.Series({k: format_number(v, 6) for k, v in res.metrics.items()}, name="value")
+    print(
+        f"Scenario {sc.name}, controller {args.controller}, seed {args.seed}, "
+        f"{len(res.df)} rows, {res.wall_time_s:.2f} s wall"
+    )
+    print(table.to_frame().to_string())
     print(f"wrote {', '.join(map(str, pngs))} and {out / (stem + '.csv')}")
     return 0
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from train_envs.reproduce import get_reproduction
+    from train_envs.cli_args import writable_folder
+    from train_envs.labels import format_table
+    from train_envs.reproduce import get_reproduction, write_reproduction
 
-    df = get_reproduction(args.paper)(seed=args.seed)
-    with pd.option_context("display.float_format", "{:.4g}".format, "display.width", 200):
-        print(df.to_string(index=False))
+    files: list[Path] = []
+    if args.out:
+        writable_folder(args.out)  # before any work: one error line
+        df, files = write_reproduction(args.paper, args.out, seed=args.seed)
+    else:
+        df = get_reproduction(args.paper)(seed=args.seed)
+    with pd.option_context("display.width", 200):
+        print(format_table(df))
     if args.csv:
         df.to_csv(args.csv, index=False)
-        print(f"wrote {args.csv}")
+        files.append(Path(args.csv))
+    for f in files:
+        print(f"wrote {f}")
     return 0
 
 
@@ -190,6 +200,11 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("paper", choices=list_reproductions())
     pr.add_argument("--seed", type=int, default=0)
     pr.add_argument("--csv", default=None, help="also write the table to this CSV file")
+    pr.add_argument(
+        "--out",
+        default=None,
+        help="folder for the table (<paper>.csv) and the figures (<paper>_*.png)",
+    )
     pr.set_defaults(func=cmd_reproduce)
     ps = sub.add_parser("simulate", help="run one closed-loop episode, print metrics, write a plot")
     ps.add_argument("--scenario", default="paper001_stopping")

@@ -27,6 +27,11 @@ from typing import Any
 
 from train_envs.cli_args import json_object, key_values, parse_seeds, writable_folder
 
+#: ``--algo`` choices (:data:`tuners.run.ALGORITHMS`, listed here so that the parser
+#: imports neither pymoo nor Optuna)
+ALGO_CHOICES = ("mowoa", "pso", "mopso", "nsga2", "moead")
+ALGO_CHOICES += ("optuna-tpe", "optuna-nsga2", "optuna-nsga3", "optuna-gp")
+
 __all__ = ["add_tune_parser", "cmd_delete", "cmd_list", "cmd_show", "cmd_tune", "write_outputs"]
 
 DEFAULT_STORAGE = "sqlite:///tuning.db"  # = tuners.run.DEFAULT_STORAGE (no heavy import)
@@ -60,8 +65,8 @@ def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
     p.add_argument(
         "--algo",
         default=None,
-        choices=["mowoa", "pso", "mopso", "nsga2", "moead"],
-        help="search algorithm (default mowoa)",
+        choices=ALGO_CHOICES,
+        help="search algorithm (default mowoa; optuna-*: Optuna's samplers)",
     )
     p.add_argument("--pop", type=int, default=None, help="population size (default 40)")
     p.add_argument(
@@ -311,25 +316,42 @@ def cmd_tune(args: argparse.Namespace) -> int:
     print(show(res.study_name, args.storage))
     holdout = inp["holdout"]
     if holdout:
+        from train_envs.labels import format_table
+
         table = res.compare_on_seeds(holdout)
         print(f"Held-out seeds {holdout}:")
-        print(table.to_string(index=False))
+        bounds = dict(getattr(res.problem, "constraints", ()))
+        print(format_table(table, digits=5, bounds=bounds))
     if args.out:
         for f in write_outputs(res, args.out):
             print(f"wrote {f}")
         if holdout and res.selected is not None:
-            from train_envs.plotting import speed_distance_figure
+            from train_envs.plotting import comparison_figure
 
             seed = holdout[0]
             runs = res.trajectories(seed)
             env_id = getattr(res.problem, "env_id", args.env)
-            fig = speed_distance_figure(
-                runs, title=f"{env_id}: defaults vs selected, held-out seed {seed}"
+            fig = comparison_figure(
+                runs,
+                title=f"{env_id}: defaults vs selected, held-out seed {seed}",
+                s_stop_m=_stop_of(env_id, getattr(res.problem, "config", None), seed),
             )
             path = Path(args.out) / f"{res.study_name.replace('/', '_')}_speed_distance.png"
             fig.savefig(path, dpi=110)
             print(f"wrote {path}")
     return 0
+
+
+def _stop_of(env_id: str, config: Any, seed: int) -> float | None:
+    """The stopping point of the env's episode ``seed`` (None for a cruise)."""
+    import gymnasium as gym
+
+    env = gym.make(env_id, config=config)
+    try:
+        env.reset(seed=seed)
+        return env.unwrapped.scenario.s_stop_m
+    finally:
+        env.close()
 
 
 def _study_name(name: str) -> str:

@@ -29,7 +29,7 @@ from train_envs.reproduce.paper004 import (
     compare_paper004,
 )
 
-__all__ = ["reproduce_paper004", "tune_paper004"]
+__all__ = ["figures_paper004", "reproduce_paper004", "tune_paper004"]
 
 
 def tune_paper004(
@@ -65,10 +65,12 @@ def reproduce_paper004(
     train_seeds: Sequence[int] = (0, 1),
     holdout_seeds: Sequence[int] = HOLDOUT_SEEDS,
     storage: str | None = "sqlite:///out/reproduce/paper004.db",
+    runs: dict[str, pd.DataFrame] | None = None,
 ) -> pd.DataFrame:
     """Held-out objectives of the four drivers and their change vs Fuzzy-PID (see module).
 
-    ``seed`` seeds both tuners; ``pop × iters`` is each tuner's budget.
+    ``seed`` seeds both tuners; ``pop × iters`` is each tuner's budget. ``runs``, if
+    given, receives each tuner's evaluations (:attr:`tuners.run.TuneResult.evaluations`).
     """
     import optuna
 
@@ -81,7 +83,23 @@ def reproduce_paper004(
         if res.selected_params is None:
             raise RuntimeError(f"{algo}: no feasible solution in {pop} x {iters} evaluations")
         tuned[f"mpc_{algo}"] = res.selected_params
+        if runs is not None:
+            runs[algo] = res.evaluations
     out = compare_paper004(tuned, holdout_seeds)
     budget = f"{pop} x {iters} per tuner, train seeds {list(train_seeds)}"
     out.attrs = {"budget": budget, **out.attrs}
     return out
+
+
+def figures_paper004(table: pd.DataFrame, runs: dict[str, pd.DataFrame]) -> dict:
+    """MOWOA's Pareto matrix and parallel coordinates, and the hypervolume of each
+    tuner's feasible set per generation (:mod:`tuners.plots`)."""
+    from tuners import plots
+
+    figs = {}
+    if "mowoa" in runs:
+        figs["mowoa_pareto"] = plots.pareto_front_figure(runs["mowoa"])
+        figs["mowoa_parallel"] = plots.parallel_coordinates_figure(runs["mowoa"])
+    for algo, df in runs.items():
+        figs[f"{algo}_hypervolume"] = plots.hypervolume_figure(df)
+    return figs

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from train_envs.labels import metric_label
 from train_envs.plotting import new_figure
 from tuners.mowoa import nondominated
 
@@ -104,7 +105,7 @@ def pareto_front_figure(
     if not pairs:
         pairs = [(0, 0)]
     n = len(pairs)
-    ncol = min(3, n)
+    ncol = _grid_columns(n)
     nrow = int(np.ceil(n / ncol))
     fig, _ = new_figure((4.2 * ncol, 3.6 * nrow), layout="constrained")
     axes = fig.subplots(nrow, ncol, squeeze=False).ravel()
@@ -116,7 +117,7 @@ def pareto_front_figure(
         if i == j:  # a single objective: value vs evaluation index
             ax.plot(np.arange(len(feas)), feas[xi], ".", color="0.6", label="feasible")
             ax.set_xlabel("evaluation")
-            ax.set_ylabel(xi)
+            ax.set_ylabel(metric_label(xi))
             continue
         ax.scatter(feas[xi], feas[yj], s=10, color="0.7", label="feasible")
         if len(par):
@@ -125,8 +126,8 @@ def pareto_front_figure(
             ax.scatter(dflt[xi], dflt[yj], s=60, marker="x", color="C3", label="defaults")
         if len(sel):
             ax.scatter(sel[xi], sel[yj], s=140, marker="*", color="C1", label="selected")
-        ax.set_xlabel(xi)
-        ax.set_ylabel(yj)
+        ax.set_xlabel(metric_label(xi))
+        ax.set_ylabel(metric_label(yj))
         ax.grid(True, alpha=0.3)
     for ax in axes[n:]:
         ax.set_visible(False)
@@ -135,11 +136,23 @@ def pareto_front_figure(
     return fig
 
 
+def _grid_columns(n: int, max_cols: int = 5) -> int:
+    """Columns of a grid for ``n`` panels with no empty cell where a divisor allows it
+    (the one closest to a 5:3 aspect), else the fewest empty cells."""
+    options = range(1, min(n, max_cols) + 1)
+    return min(options, key=lambda c: ((-n) % c, abs(c / np.ceil(n / c) - 5 / 3)))
+
+
 def parallel_coordinates_figure(
     df: pd.DataFrame, columns: Sequence[str] | None = None, only_pareto: bool = True
 ) -> Figure:
-    """Parallel coordinates of parameters and objectives (each axis min–max scaled),
-    Pareto set coloured by its Tchebycheff value, the selected solution bold."""
+    """Parallel coordinates of parameters and objectives, the Pareto set coloured by its
+    Tchebycheff value (colour bar), the selected solution bold.
+
+    Each axis is scaled from its smallest to its largest value (log scale where the
+    values are positive and span more than two decades, as the log-scaled weights do);
+    the axis values are written at its bottom, middle and top.
+    """
     if columns is None:
         columns = list(df.attrs.get("params") or []) + _objectives(df, None)
     cols = [c for c in columns if c in df.columns]
@@ -149,25 +162,51 @@ def parallel_coordinates_figure(
     if only_pareto and "pareto" in data and data["pareto"].any():
         data = data[data["pareto"]]
     V = data[cols].to_numpy(float)
-    lo, hi = V.min(axis=0), V.max(axis=0)
-    Vn = (V - lo) / np.where(hi > lo, hi - lo, 1.0)
-    fig, _ = new_figure((max(6.0, 1.1 * len(cols)), 4.5), layout="constrained")
+    lo, hi = np.nanmin(V, axis=0), np.nanmax(V, axis=0)
+    logs = (lo > 0) & (hi > 100 * lo)
+    W = np.where(logs, np.log10(np.where(V > 0, V, 1.0)), V)
+    wlo, whi = (
+        np.where(logs, np.log10(np.where(logs, lo, 1.0)), lo),
+        np.where(logs, np.log10(np.where(logs, hi, 1.0)), hi),
+    )
+    Vn = (W - wlo) / np.where(whi > wlo, whi - wlo, 1.0)
+    fig, _ = new_figure((max(7.0, 1.25 * len(cols)), 5.0), layout="constrained")
     ax = fig.add_subplot()
     xs = np.arange(len(cols))
     t = data["tchebycheff"].to_numpy(float) if "tchebycheff" in data else np.zeros(len(data))
     t = np.nan_to_num(t, nan=np.nanmax(t) if np.isfinite(t).any() else 0.0)
-    tn = (t - t.min()) / (np.ptp(t) or 1.0)
+    norm = matplotlib.colors.Normalize(float(t.min()), float(t.max()) if np.ptp(t) else 1.0)
     cmap = matplotlib.colormaps["viridis"]
     sel = data["selected"].to_numpy(bool) if "selected" in data else np.zeros(len(data), bool)
-    for k in range(len(data)):
-        ax.plot(xs, Vn[k], color=cmap(tn[k]), alpha=0.6, lw=1.0)
+    for k in np.argsort(-t, kind="stable"):  # best (lowest) drawn last, on top
+        ax.plot(xs, Vn[k], color=cmap(norm(t[k])), alpha=0.7, lw=1.0)
     for k in np.flatnonzero(sel):
         ax.plot(xs, Vn[k], color="C3", lw=2.5, label="selected")
-    ax.set_xticks(xs, cols, rotation=30, ha="right")
-    ax.set_ylabel("scaled value (per-axis min–max)")
+    for x, a, b, lg in zip(xs, lo, hi, logs, strict=True):
+        mid = np.sqrt(a * b) if lg else 0.5 * (a + b)
+        d = next((d for d in range(3, 7) if len({f"{v:.{d}g}" for v in (a, mid, b)}) == 3), 6)
+        for y, v in ((0.0, a), (0.5, mid), (1.0, b)):
+            ax.annotate(
+                f"{v:.{d}g}",
+                (x, y),
+                xytext=(3, 0),
+                textcoords="offset points",
+                fontsize=7,
+                va="center",
+                color="0.2",
+                bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8},
+                zorder=5,
+            )
+    ax.vlines(xs, 0.0, 1.0, color="0.6", lw=0.8)
+    labels = [metric_label(c) + (" (log)" if lg else "") for c, lg in zip(cols, logs, strict=True)]
+    ax.set_xticks(xs, labels, rotation=30, ha="right")
+    ax.set_yticks([])
+    ax.set_xlim(-0.3, len(cols) - 0.4)
+    ax.set_ylim(-0.05, 1.05)
     what = "Pareto set" if only_pareto else "Feasible evaluations"
-    ax.set_title(f"{what} (colour: Tchebycheff value)")
+    ax.set_title(f"{what}: parameters and objectives (each axis from its min to its max)")
     if sel.any():
-        ax.legend(fontsize=8)
-    ax.grid(True, axis="x", alpha=0.3)
+        ax.legend(fontsize=8, loc="upper left")
+    sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap)
+    fig.colorbar(sm, ax=ax, pad=0.01, label="Tchebycheff value (lower is better)")
     return fig

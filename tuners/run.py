@@ -2,7 +2,9 @@
 
 A run = a :class:`tuners.problem.EnvTuningProblem` (or any
 :class:`~tuners.problem.TaskProblem`), a pymoo algorithm (``mowoa``, ``pso``,
-``mopso``, or pymoo's ``nsga2`` / ``moead`` as baselines), an evaluation backend
+``mopso``, pymoo's ``nsga2`` / ``moead`` as baselines, or an Optuna sampler
+``optuna-tpe`` / ``optuna-nsga2`` / ``optuna-nsga3`` / ``optuna-gp``:
+:mod:`tuners.optuna_samplers`), an evaluation backend
 (:mod:`tuners.backends`) and an Optuna study (:mod:`tuners.storage`). Each generation is
 one batch of evaluations; every finished evaluation is written to the study at once and
 a checkpoint (plain data) after every generation, so ``resume=True`` continues a killed
@@ -46,6 +48,7 @@ import pandas as pd
 from pymoo.core.algorithm import Algorithm
 from pymoo.core.callback import Callback
 
+from train_envs.labels import format_table
 from tuners.backends import EvalStats, Evaluations, default_backend, make_backend
 from tuners.checkpoint import generations_done, replay, set_iters
 from tuners.mowoa import (
@@ -54,6 +57,7 @@ from tuners.mowoa import (
     nondominated,
     tchebycheff,
 )
+from tuners.optuna_samplers import OPTUNA_ALGORITHMS, OptunaSampler
 from tuners.problem import EnvTuningProblem, TaskProblem
 from tuners.pso import MOPSO, PSO
 from tuners.selection import (
@@ -73,7 +77,7 @@ from tuners.storage import (
     stored_run_config,
 )
 
-ALGORITHMS = ("mowoa", "pso", "mopso", "nsga2", "moead")
+ALGORITHMS = ("mowoa", "pso", "mopso", "nsga2", "moead", *OPTUNA_ALGORITHMS)
 #: algorithms with one weight vector per individual
 DECOMPOSITION = ("mowoa", "mopso", "moead")
 DEFAULT_STORAGE = "sqlite:///tuning.db"
@@ -110,6 +114,8 @@ def make_algorithm(
     """
     if algo in ("mowoa", "mopso", "moead") and problem.n_obj > 1:
         kwargs.setdefault("ref_dirs", run_weight_vectors(problem.n_obj, pop, target_weights))
+    if algo in OPTUNA_ALGORITHMS:
+        return OptunaSampler(algo, pop_size=pop, initial_X=initial_X, **kwargs)
     if algo == "mowoa":
         return MOWOA(pop_size=pop, initial_X=initial_X, **kwargs)
     if algo == "pso":
@@ -344,7 +350,8 @@ def tune(
         env_id: registered env id, or a ready :class:`TaskProblem` (then ``seeds``,
             ``objectives``, ``config``, ``params``, ``space``, ``constraints`` are unused);
             on resume of an env study ``None`` takes the stored env id.
-        algo: ``mowoa`` | ``pso`` | ``mopso`` | ``nsga2`` | ``moead`` [mowoa].
+        algo: ``mowoa`` | ``pso`` | ``mopso`` | ``nsga2`` | ``moead`` | an Optuna
+            sampler of :data:`tuners.optuna_samplers.OPTUNA_ALGORITHMS` [mowoa].
         pop, iters: population size [40] and generations incl. the initial one [100].
         workers, backend, dask_address, dask_client: evaluation backend
             (``serial`` | ``processes`` | ``lockstep`` | ``dask``; default
@@ -720,15 +727,14 @@ def show(study: str, storage: str = DEFAULT_STORAGE, max_rows: int = 50) -> str:
         f"target weights {np.round(r.target_weights, 4).tolist()}, "
         f"normalisation {r.normalization}",
     ]
-    with pd.option_context("display.float_format", "{:.5g}".format, "display.width", 200):
-        lines.append(f"Pareto set ({len(r.pareto)} solutions):")
-        if len(r.pareto):
-            lines.append(r.pareto[cols].head(max_rows).to_string(index=False))
-        if r.selected is not None:
-            lines.append("Selected (cosine similarity to the target weights):")
-            lines.append(r.selected[cols].to_frame().T.to_string(index=False))
-        dflt = df[df["is_default"]] if "is_default" in df else df.iloc[0:0]
-        if len(dflt):
-            lines.append("Defaults:")
-            lines.append(dflt[cols].to_string(index=False))
+    lines.append(f"Pareto set ({len(r.pareto)} solutions):")
+    if len(r.pareto):
+        lines.append(format_table(r.pareto[cols].head(max_rows), digits=5))
+    if r.selected is not None:
+        lines.append("Selected (cosine similarity to the target weights):")
+        lines.append(format_table(r.selected[cols].to_frame().T.infer_objects(), digits=5))
+    dflt = df[df["is_default"]] if "is_default" in df else df.iloc[0:0]
+    if len(dflt):
+        lines.append("Defaults:")
+        lines.append(format_table(dflt[cols], digits=5))
     return "\n".join(lines)

@@ -71,7 +71,7 @@ def test_paper004_reproduction_lives_with_the_tuners():
 
     assert list_reproductions() == [f"paper00{i}" for i in range(5)]
     assert get_reproduction("paper004") is reproduce_paper004
-    assert paper004.reproduce_paper004 is reproduce_paper004  # the old import path
+    assert paper004.reproduce_paper004 is reproduce_paper004  # its import path works
     with pytest.raises(ValueError, match="no reproduction for 'nope'; choose one of: paper000"):
         get_reproduction("nope")
     with pytest.raises(AttributeError):

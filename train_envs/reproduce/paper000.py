@@ -17,6 +17,7 @@ Write-up and the measured table: ``docs/papers/paper000.md``.
 from __future__ import annotations
 
 from math import nan
+from typing import Any
 
 import pandas as pd
 
@@ -40,11 +41,17 @@ PAPER000 = {
 }
 
 
-def reproduce_paper000(seed: int = 0) -> pd.DataFrame:
-    """Our E_u [1e12 N² s], E_v [m/s], E_x [m], E_p [m] beside paper 000's."""
+def reproduce_paper000(seed: int = 0, runs: dict[Any, pd.DataFrame] | None = None) -> pd.DataFrame:
+    """Our E_u [1e12 N² s], E_v [m/s], E_x [m], E_p [m] beside paper 000's.
+
+    ``runs``, if given, receives each run's DataFrame under ``(scenario, controller)``.
+    """
     rows = []
     for (scenario, ctrl), paper in PAPER000.items():
-        m = simulate(scenario, ctrl, seed=seed).metrics
+        res = simulate(scenario, ctrl, seed=seed)
+        m = res.metrics
+        if runs is not None:
+            runs[scenario, ctrl] = res.df
         rows.append(
             {
                 "scenario": scenario.removeprefix("paper000_"),
@@ -62,3 +69,27 @@ def reproduce_paper000(seed: int = 0) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
+
+
+def figures_paper000(table: pd.DataFrame, runs: dict[Any, pd.DataFrame]) -> dict[str, Any]:
+    """Per scenario: SEMPC, MPC and AFSMC compared (speed error, command, stop zoom);
+    SEMPC's per-car commands and coupler force on the single section."""
+    from train_envs.plots_papers import multi_car_figure
+    from train_envs.plotting import comparison_figure
+    from train_envs.scenarios import get_scenario
+
+    figs: dict[str, Any] = {}
+    for scenario in dict.fromkeys(sc for sc, _ in PAPER000):
+        sc = get_scenario(scenario)
+        ctrls = {
+            c: runs[scenario, c] for c in ("sempc", "mpc000", "afsmc000") if (scenario, c) in runs
+        }
+        if ctrls:
+            name = scenario.removeprefix("paper000_")
+            figs[f"compare_{name}"] = comparison_figure(ctrls, s_stop_m=sc.s_stop_m, title=scenario)
+    if ("paper000_single_section", "sempc") in runs:
+        figs["cars_single_section_sempc"] = multi_car_figure(
+            runs["paper000_single_section", "sempc"],
+            title="paper000_single_section, SEMPC: per-car commands and couplers",
+        )
+    return figs

@@ -105,3 +105,10 @@ def reproduce_paper001(
         for N in horizons:
             rows.append(_row(reading, "RSMPC", N, runs_of("rsmpc", N=N), "RSMPC"))
     return pd.DataFrame(rows)
+
+
+def figures_paper001(table: pd.DataFrame, runs: dict | None = None) -> dict:
+    """Stopping error and command switches against the horizon (001 Fig. 11)."""
+    from train_envs.plots_papers import paper001_horizon_figure
+
+    return {"horizon": paper001_horizon_figure(table)}

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -180,9 +181,12 @@ def summarise_run(df: pd.DataFrame) -> dict[str, float]:
     }
 
 
-def _job(args: tuple[str, int, float | None, str]) -> tuple[str, int, dict[str, float]]:
-    ctrl, seed, t_max, scenario = args
-    return ctrl, seed, summarise_run(run_paper002(ctrl, seed, scenario=scenario, t_max_s=t_max))
+def _job(
+    args: tuple[str, int, float | None, str, bool],
+) -> tuple[str, int, dict[str, float], pd.DataFrame | None]:
+    ctrl, seed, t_max, scenario, keep = args
+    df = run_paper002(ctrl, seed, scenario=scenario, t_max_s=t_max)
+    return ctrl, seed, summarise_run(df), df if keep else None
 
 
 def compare_paper002(
@@ -191,22 +195,45 @@ def compare_paper002(
     t_max_s: float | None = None,
     workers: int | None = None,
     scenario: str = "paper002_cruise",
+    traces: dict[str, pd.DataFrame] | None = None,
+    progress: bool = False,
 ) -> pd.DataFrame:
     """Adaptive vs non-adaptive on the same seeds: one row per (controller, seed) + means.
 
     ``workers``: processes (default: ``min(cpu_count, runs)``; 1 = in this process).
     ``scenario``: ``"paper002_cruise"`` (Table 2's command) or
     ``"paper002_cruise_feasible"`` (the 40 → 70 m/s ramp within the traction envelope).
+    ``traces``, if given, receives the first seed's trace per controller
+    (:func:`run_paper002`); ``progress``: one line per finished run on stderr.
     """
-    jobs = [(c, int(s), t_max_s, scenario) for s in seeds for c in CONTROLLERS]
+    first = int(seeds[0]) if len(seeds) else None
+    keep = traces is not None
+    jobs = [
+        (c, int(s), t_max_s, scenario, keep and int(s) == first) for s in seeds for c in CONTROLLERS
+    ]
     if workers is None:
         workers = min(os.cpu_count() or 1, len(jobs))
+    t0 = time.perf_counter()
+    results = []
+
+    def collect(it) -> None:
+        for k, out in enumerate(it, 1):
+            results.append(out)
+            if progress:
+                print(
+                    f"  paper002 ({scenario}): {out[0]} seed {out[1]} done, {k}/{len(jobs)} "
+                    f"({time.perf_counter() - t0:.0f} s)",
+                    file=sys.stderr,
+                )
+
     if workers <= 1:
-        results = [_job(j) for j in jobs]
+        collect(_job(j) for j in jobs)
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            results = list(pool.map(_job, jobs))
-    rows = [{"controller": c, "seed": s, **m} for c, s, m in results]
+            collect(pool.map(_job, jobs))
+    if traces is not None:
+        traces.update({c: df for c, _, _, df in results if df is not None})
+    rows = [{"controller": c, "seed": s, **m} for c, s, m, _ in results]
     df = pd.DataFrame(rows)
     means = df.drop(columns="seed").groupby("controller", sort=False).mean().reset_index()
     means.insert(1, "seed", "mean")
@@ -241,7 +268,9 @@ SHORT_COLUMNS = {
 }
 
 
-def reproduce_paper002(seed: int = 0) -> pd.DataFrame:
+def reproduce_paper002(
+    seed: int = 0, runs: dict[str, pd.DataFrame] | None = None, progress: bool = True
+) -> pd.DataFrame:
     """Adaptive vs non-adaptive MPC on seeds ``seed .. seed+4`` beside 002's claims.
 
     Run on Table 2's command and on its traction-feasible variant (column ``command``).
@@ -249,11 +278,30 @@ def reproduce_paper002(seed: int = 0) -> pd.DataFrame:
     Speeds in m/s, forces in kN; ``_unsat`` outside the traction-limited window
     :data:`SATURATED_WINDOW_S`, ``_cruise`` in :data:`CRUISE_WINDOWS_S` (see the module
     docstring). Rows: each (controller, seed), then the seed means and maxima.
+    ``runs``, if given, receives the traces of seed ``seed`` under ``"<scenario>/<controller>"``;
+    ``progress``: one line per finished run on stderr.
     """
     parts = []
     for scenario in ("paper002_cruise", "paper002_cruise_feasible"):
-        full = compare_paper002(tuple(range(seed, seed + 5)), scenario=scenario)
+        traces: dict[str, pd.DataFrame] | None = None if runs is None else {}
+        full = compare_paper002(
+            tuple(range(seed, seed + 5)), scenario=scenario, traces=traces, progress=progress
+        )
+        if runs is not None and traces is not None:
+            runs.update({f"{scenario}/{c}": df for c, df in traces.items()})
         part = full[list(SHORT_COLUMNS)].rename(columns=SHORT_COLUMNS)
         part.insert(0, "command", "Table 2" if scenario == "paper002_cruise" else "feasible")
         parts.append(part)
     return pd.concat(parts, ignore_index=True)
+
+
+def figures_paper002(table: pd.DataFrame, runs: Mapping[str, pd.DataFrame]) -> dict:
+    """Per command: estimation error, resistance estimate, speed error and coupler force
+    of both controllers against time (002 Figs. 7, 9, 10; :func:`paper002_figure`)."""
+    from train_envs.plots_papers import paper002_figure
+
+    figs = {}
+    for scenario in dict.fromkeys(k.split("/")[0] for k in runs):
+        both = {k.split("/")[1]: df for k, df in runs.items() if k.startswith(scenario + "/")}
+        figs[scenario.removeprefix("paper002_")] = paper002_figure(both, title=scenario)
+    return figs

@@ -37,6 +37,8 @@ Why absolute values differ from 003's, and which claims are checked:
 from __future__ import annotations
 
 import math
+import sys
+import time
 from typing import Any
 
 import numpy as np
@@ -143,8 +145,22 @@ def _row(table: str, case: str, ours: dict[str, float], paper: dict[str, Any]) -
     return row
 
 
-def reproduce_paper003(seed: int = 0) -> pd.DataFrame:
-    """Three actuator cases and the Table 2 weight trade-off beside paper 003's numbers."""
+def reproduce_paper003(
+    seed: int = 0, runs: dict[str, pd.DataFrame] | None = None, progress: bool = True
+) -> pd.DataFrame:
+    """Three actuator cases and the Table 2 weight trade-off beside paper 003's numbers.
+
+    ``runs``, if given, receives each run's DataFrame under ``"cases/<case>"`` and
+    ``"weights/<variant>"``; ``progress``: one line per finished run on stderr.
+    """
+    t0 = time.perf_counter()
+
+    def done(what: str, df: pd.DataFrame) -> None:
+        if runs is not None:
+            runs[what] = df
+        if progress:
+            print(f"  paper003: {what} done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+
     sc = paper003_step_scenario()
     no_act = sc.with_overrides(actuator=ActuatorParams(order=0))
     kw = {"feedforward": "resistance"}
@@ -157,6 +173,7 @@ def reproduce_paper003(seed: int = 0) -> pd.DataFrame:
         ("3 actuator + compensator", sc, True),
     ]:
         df = simulate(scen, FuzzyMPCController(scen, compensator=comp, **kw), seed=seed).df
+        done(f"cases/{case}", df)
         if ref_df is None:
             ref_df = df
         m = _metrics(df, None if case.startswith("1") else ref_df)
@@ -172,9 +189,13 @@ def reproduce_paper003(seed: int = 0) -> pd.DataFrame:
     for name, params in variants:
         if not params and base is not None:
             m = base
+            if runs is not None:
+                runs[f"weights/{name}"] = runs["cases/3 actuator + compensator"]
         else:
             ctrl = FuzzyMPCController(sc, compensator=True, **kw, **params)
-            m = _metrics(simulate(sc, ctrl, seed=seed).df, None)
+            run_df = simulate(sc, ctrl, seed=seed).df
+            done(f"weights/{name}", run_df)
+            m = _metrics(run_df, None)
         m = {k: v for k, v in m.items() if not k.startswith("rms_")}
         rows.append(
             _row("weights", f"{name} ({_describe(defaults, params)})", m, PAPER003_TABLE2[name])
@@ -192,3 +213,16 @@ def reproduce_paper003(seed: int = 0) -> pd.DataFrame:
 def _describe(defaults: dict[str, float], params: dict[str, float]) -> str:
     p = {**defaults, **params}
     return f"q_v={p['q_v']:g}, r_e={p['r_e']:g}"
+
+
+def figures_paper003(table: pd.DataFrame, runs: dict[str, pd.DataFrame]) -> dict:
+    """The three actuator cases and the Table 2 weight variants against time
+    (:func:`~train_envs.plots_papers.paper003_compensation_figure`)."""
+    from train_envs.plots_papers import paper003_compensation_figure
+
+    figs = {}
+    for group, title in (("cases", "actuator compensation"), ("weights", "Table 2 weights")):
+        part = {k.split("/", 1)[1]: df for k, df in runs.items() if k.startswith(group + "/")}
+        if part:
+            figs[group] = paper003_compensation_figure(part, title=f"paper 003: {title}")
+    return figs
