@@ -16,8 +16,12 @@ import pytest
 from test_mpc_core import random_instance
 
 import train_envs  # noqa: F401
+from train_envs._jit import enabled, implementation
+from train_envs.controllers import make_controller
 from train_envs.mpc import LinearMPC
 from train_envs.mpc.blas import single_thread_blas
+from train_envs.scenarios import get_scenario
+from train_envs.simulation import ClosedLoop
 
 #: the arrays that make up the QP data and the condensed quantities built on them
 _FIELDS = ("_P_dense", "_A_dense", "_M_full", "_M_no_D", "_H", "_Fq", "_Lth_c")
@@ -103,3 +107,44 @@ def test_env_qps_after_random_actions_equal_a_cold_rebuild(env_id):
             warm = _snapshot(mpc)
             _equal(warm, _cold(mpc))
     env.close()
+
+
+@pytest.mark.parametrize("n_cars", [1, 6])
+def test_compiled_doubling_equals_reference(n_cars):
+    """The compiled twin of the DARE doubling gives the reference's solution bit for bit
+    on the train MPCs' augmented models over random tunable weights."""
+
+    if not enabled():
+        pytest.skip("compiled twins disabled")
+    name, scen = (
+        ("mpc", "paper001_stopping") if n_cars == 1 else ("sempc", "paper000_single_section")
+    )
+    sc = get_scenario(scen)
+    ctrl = make_controller(name, scenario=sc)
+    ClosedLoop(sc, ctrl).reset(seed=0)
+    A, B = ctrl._Ad, ctrl._Bd
+    n, m = B.shape
+    Aa = np.block([[A, B], [np.zeros((m, n)), np.eye(m)]])
+    Ba = np.vstack([B, np.eye(m)])
+    fast = implementation("dare_doubling", compiled_twin=True)
+    ref = implementation("dare_doubling", compiled_twin=False)
+    rng = np.random.default_rng(n_cars)
+    specs = ctrl.tunable_params()
+    for _ in range(20):
+        ctrl.set_params(
+            **{
+                p.name: p.from_unit(u)
+                for p, u in zip(specs, rng.uniform(-1, 1, len(specs)), strict=True)
+            }
+        )
+        Q, R, _ = ctrl._weights()
+        Qa = np.zeros((n + m, n + m))
+        Qa[:n, :n] = ctrl._C.T @ Q @ ctrl._C
+        H1, ok1 = ref(Aa, Ba, Qa, np.ascontiguousarray(R), 1e-12)
+        H2, ok2 = fast(Aa, Ba, Qa, np.ascontiguousarray(R), 1e-12)
+        assert ok1 and ok2
+        np.testing.assert_array_equal(H1, H2)
+        # and it is the Riccati solution
+        K = np.linalg.solve(R + Ba.T @ H1 @ Ba, Ba.T @ H1 @ Aa)
+        res = Aa.T @ H1 @ Aa - Aa.T @ H1 @ Ba @ K + Qa - H1
+        assert np.abs(res).max() <= 1e-8 * np.abs(H1).max()

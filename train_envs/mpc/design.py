@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import expm, solve_discrete_are, solve_discrete_lyapunov
 
+from train_envs._jit import implementation, register
 from train_envs.mpc.description import _matrix, _weight
 
 
@@ -103,6 +104,38 @@ def augmented_terminal_cost(
     return P, K, P[:n, :n].copy()
 
 
+def _doubling_kernel(
+    A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, tol: float
+) -> tuple[np.ndarray, bool]:
+    """The iteration of :func:`dare_doubling` on C-contiguous float arrays: ``(H, converged)``
+    (plain numpy the compiler accepts; registered as the twin ``"dare_doubling"``)."""
+    n = A.shape[0]
+    Ak = A.copy()
+    G = B @ np.linalg.solve(R, B.T.copy())
+    H = Q.copy()
+    eye = np.eye(n)
+    AG = np.empty((n, 2 * n))  # [A | G]: both solves with W in one call
+    for _ in range(80):
+        AG[:, :n] = Ak
+        AG[:, n:] = G
+        X = np.linalg.solve(eye + G @ H, AG)
+        WA = X[:, :n].copy()
+        H_new = H + Ak.T.copy() @ H @ WA
+        G = G + Ak @ X[:, n:].copy() @ Ak.T.copy()
+        Ak = Ak @ WA
+        H_new = 0.5 * (H_new + H_new.T)
+        step = np.abs(H_new - H).sum(axis=0).max()  # 1-norm of the change
+        H = H_new
+        if not step == step or not np.all(np.isfinite(H)):
+            return H, False
+        if step <= tol * max(1.0, np.abs(H).sum(axis=0).max()):
+            return H, True
+    return H, False
+
+
+register("dare_doubling", _doubling_kernel)
+
+
 def dare_doubling(
     A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray, *, tol: float = 1e-12
 ) -> np.ndarray:
@@ -116,27 +149,11 @@ def dare_doubling(
         A ← A W⁻¹ A,   G ← G + A W⁻¹ G Aᵀ,   H ← H + Aᵀ H W⁻¹ A
 
     and ``H → P`` quadratically (``H_k`` is the Riccati iterate of ``2^k`` steps).
-    Raises ``np.linalg.LinAlgError`` if it does not converge in 80 doublings.
+    Runs the compiled twin where available (same operations). Raises
+    ``np.linalg.LinAlgError`` if it does not converge in 80 doublings.
     """
-    n = A.shape[0]
-    Ak = np.array(A, dtype=float)
-    G = B @ np.linalg.solve(R, B.T)
-    H = np.array(Q, dtype=float)
-    eye = np.eye(n)
-    AG = np.empty((n, 2 * n))  # [A | G]: both solves with W in one call
-    for _ in range(80):
-        AG[:, :n] = Ak
-        AG[:, n:] = G
-        X = np.linalg.solve(eye + G @ H, AG)
-        WA = X[:, :n]
-        H_new = H + Ak.T @ H @ WA
-        G = G + Ak @ X[:, n:] @ Ak.T
-        Ak = Ak @ WA
-        H_new = 0.5 * (H_new + H_new.T)
-        step = float(np.abs(H_new - H).sum(axis=0).max())  # 1-norm of the change
-        H = H_new
-        if not step == step or not np.all(np.isfinite(H)):
-            break
-        if step <= tol * max(1.0, float(np.abs(H).sum(axis=0).max())):
-            return H
-    raise np.linalg.LinAlgError("DARE doubling iteration did not converge")
+    args = [np.ascontiguousarray(X, dtype=float) for X in (A, B, Q, R)]
+    H, converged = implementation("dare_doubling")(*args, float(tol))
+    if not converged:
+        raise np.linalg.LinAlgError("DARE doubling iteration did not converge")
+    return H
