@@ -88,8 +88,13 @@ def augmented_terminal_cost(
     ``Δu = −K ξ`` and the x-block used as the core's state terminal weight.
     """
     n, m = B.shape
-    Aa = np.block([[A, B], [np.zeros((m, n)), np.eye(m)]])
-    Ba = np.vstack([B, np.eye(m)])
+    Aa = np.zeros((n + m, n + m))
+    Aa[:n, :n] = A
+    Aa[:n, n:] = B
+    Aa[n:, n:] = np.eye(m)
+    Ba = np.zeros((n + m, m))
+    Ba[:n] = B
+    Ba[n:] = np.eye(m)
     Qa = np.zeros((n + m, n + m))
     Qa[:n, :n] = Qx
     try:
