@@ -1,19 +1,23 @@
 """Cost of a parameter change next to one control step, per controller, in one process.
 
-Run: ``python benchmarks/bench_weight_change.py [--steps 400] [--controllers mpc ...]
-[--profile NAME]``. For each controller on its paper's scenario, a closed loop runs
-with a new random parameter vector before every control step (uniform in the
-action's [−1, 1] units, mapped by :meth:`TunableParam.from_unit`, seeded): the
-``set_params`` call and the following ``compute`` are timed separately, alternating
-within the same loop. A second loop of the same length at the default parameters
-gives the control step at constant weights. Reported: the medians of ``set_params``,
-of ``compute`` under changing weights and of ``compute`` at constant weights, the ratio
-``set_params`` / constant-weight step (the acceptance figure), and the mean of
-``set_params + compute`` under changing weights over the mean constant-weight step
-(what a change really costs, wherever the controller does the work). One untimed
-warm-up episode first (QPs built on first use). ``--cpu-time`` times with this thread's
-CPU time instead of the wall clock (stabler on a busy machine). ``--profile NAME``
-prints the cProfile of the changing-weight loop of one controller instead.
+Run: ``python benchmarks/bench_weight_change.py [--steps 400] [--rounds 3]
+[--controllers mpc ...] [--cpu-time] [--profile NAME]``. For each controller on its
+paper's scenario, a closed loop runs with a new random parameter vector before every
+control step (uniform in the action's [−1, 1] units, mapped by
+:meth:`TunableParam.from_unit`, seeded): the ``set_params`` call and the following
+``compute`` are timed separately, alternating within the same loop. A second loop of
+the same length at the default parameters gives the control step at constant weights.
+Reported: the medians of ``set_params``, of ``compute`` under changing weights and of
+``compute`` at constant weights, the ratio ``set_params`` / constant-weight step (the
+acceptance figure), and the mean of ``set_params + compute`` under changing weights
+over the mean constant-weight step (what a change really costs, wherever the
+controller does the work). One untimed warm-up episode first (QPs built on first use).
+``--rounds R`` repeats both loops R times per controller (a new parameter sequence each
+round, the controllers taken in turn within a round, so drifts of a shared machine hit
+all alike) and reports the median over the rounds of every column. ``--cpu-time``
+times with this thread's CPU time instead of the wall clock (stabler on a busy
+machine). ``--profile NAME`` prints the cProfile of the changing-weight loop of one
+controller instead.
 """
 
 from __future__ import annotations
@@ -106,6 +110,7 @@ def run(
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=400, help="control steps per loop")
+    ap.add_argument("--rounds", type=int, default=1, help="repetitions (median reported)")
     ap.add_argument("--controllers", nargs="*", default=list(CASES), choices=list(CASES))
     ap.add_argument("--profile", choices=list(CASES), help="profile one controller")
     ap.add_argument("--cpu-time", action="store_true", help="time with the thread's CPU time")
@@ -123,11 +128,15 @@ def main() -> None:
         "step, constant weights [µs] | set / step | (set + step) / constant step, means |"
     )
     print("|---|---:|---:|---:|---:|---:|")
-    for name in args.controllers:
-        r = run(name, args.steps, clock=clock)
+    rounds: dict[str, list[dict[str, float]]] = {name: [] for name in args.controllers}
+    for r in range(args.rounds):
+        for name in args.controllers:
+            rounds[name].append(run(name, args.steps, seed=r, clock=clock))
+    for name, res in rounds.items():
+        m = {k: statistics.median(x[k] for x in res) for k in res[0]}
         print(
-            f"| `{name}` | {r['set_us']:.0f} | {r['step_us']:.0f} | {r['const_us']:.0f} | "
-            f"{r['ratio']:.2f} | {r['total_ratio']:.2f} |",
+            f"| `{name}` | {m['set_us']:.0f} | {m['step_us']:.0f} | {m['const_us']:.0f} | "
+            f"{m['ratio']:.2f} | {m['total_ratio']:.2f} |",
             flush=True,
         )
 
