@@ -48,7 +48,11 @@ def _constraints(items: list[str] | None) -> dict[str, float] | None:
 
 
 def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add ``tune`` (and ``tune show``) to ``subparsers``; returns the ``tune`` parser."""
+    """Add ``tune`` (and ``tune show``) to ``subparsers``, and ``benchmark``
+    (:func:`tuners.benchmark.add_benchmark_parser`); returns the ``tune`` parser."""
+    from tuners.benchmark import add_benchmark_parser
+
+    add_benchmark_parser(subparsers)
     p = subparsers.add_parser(
         "tune",
         help="tune an env's controller parameters (MOWOA, PSO, NSGA-II, MOEA/D)",

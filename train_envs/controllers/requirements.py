@@ -1,0 +1,36 @@
+"""What a controller needs of a scenario, and the refusal of an unsupported one.
+
+:func:`unsupported_reason` answers whether a controller can run a scenario: ``None``
+when it can, else the one-line reason (the message of the ``ValueError`` its
+construction on the scenario raises, which names the requirement, e.g. a multi-car
+train with per-car inputs). :class:`UnsupportedScenarioError` is the error of such a
+refusal.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from train_envs.scenarios import Scenario
+
+__all__ = ["UnsupportedScenarioError", "unsupported_reason"]
+
+
+class UnsupportedScenarioError(ValueError):
+    """A controller refuses a scenario it cannot run; the message names the requirement."""
+
+
+def unsupported_reason(controller: str, scenario: Scenario) -> str | None:
+    """``None`` if controller ``controller`` (a name) can run ``scenario``, else the reason
+    in one line. An unknown controller name raises the ``ValueError`` of
+    :func:`~train_envs.controllers.make_controller`."""
+    from train_envs.controllers import list_controllers, make_controller
+    from train_envs.validation import check_choice
+
+    check_choice("controller", controller, list_controllers())
+    try:
+        make_controller(controller, scenario)
+    except ValueError as exc:
+        return " ".join(str(exc).split()) or type(exc).__name__
+    return None
