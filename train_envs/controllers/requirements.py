@@ -1,10 +1,10 @@
 """What a controller needs of a scenario, and the refusal of an unsupported one.
 
 :func:`unsupported_reason` answers whether a controller can run a scenario: ``None``
-when it can, else the one-line reason (the message of the ``ValueError`` its
-construction on the scenario raises, which names the requirement, e.g. a multi-car
-train with per-car inputs). :class:`UnsupportedScenarioError` is the error of such a
-refusal.
+when it can, else the one-line reason: the message of the ``ValueError`` that its
+construction on the scenario, or its reset to the scenario's control context, raises
+(it names the requirement, e.g. a multi-car train with per-car inputs).
+:class:`UnsupportedScenarioError` is the error of such a refusal.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def unsupported_reason(controller: str, scenario: Scenario) -> str | None:
 
     check_choice("controller", controller, list_controllers())
     try:
-        make_controller(controller, scenario)
+        make_controller(controller, scenario).reset(scenario.control_context())
     except ValueError as exc:
         return " ".join(str(exc).split()) or type(exc).__name__
     return None
