@@ -185,3 +185,17 @@ def test_cli_errors_are_one_line(tmp_path, capsys, extra, needle):
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and needle in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o" / CELLS_FILE).exists()
+
+
+def test_publish_replaces_the_block(small, tmp_path):
+    from train_envs.benchmark.publish import publish
+
+    out, _ = small
+    doc = tmp_path / "doc.md"
+    doc.write_text("intro\n<!-- leaderboard:default -->\nold\n<!-- /leaderboard:default -->\nend\n")
+    publish("default", out, doc)
+    text = doc.read_text()
+    assert text.startswith("intro\n") and text.endswith("end\n") and "old" not in text
+    assert "3 pairs (2 ok, 1 unsupported); default parameters; seeds [0, 1]; 4 runs" in text
+    with pytest.raises(ValueError, match="no block"):
+        publish("tuned", out, doc)
