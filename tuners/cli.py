@@ -52,7 +52,6 @@ def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
     (:func:`tuners.benchmark.add_benchmark_parser`); returns the ``tune`` parser."""
     from tuners.benchmark import add_benchmark_parser
 
-    add_benchmark_parser(subparsers)
     p = subparsers.add_parser(
         "tune",
         help="tune an env's controller parameters (MOWOA, PSO, NSGA-II, MOEA/D)",
@@ -189,6 +188,7 @@ def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
     pd_.add_argument("study", help="study name")
     pd_.add_argument("--storage", default=DEFAULT_STORAGE, help="Optuna storage URL")
     pd_.set_defaults(func=cmd_delete)
+    add_benchmark_parser(subparsers)
     return p
 
 
