@@ -4,7 +4,8 @@ A cell is one closed-loop episode: (scenario, controller, parameters, seed), run
 :func:`train_envs.simulation.simulate` (ATP supervision on, as everywhere). Its record
 is one row of the tidy table: ``scenario``, ``controller``, ``parameters`` (JSON of the
 parameters set on the controller, ``{}`` = its defaults), ``params_hash``, ``seed``,
-``status`` (``ok``, ``failed`` or ``unsupported``), ``error``, ``wall_time_s`` and
+``status`` (``ok``, ``failed`` or ``unsupported``), ``error``, ``wall_time_s``,
+``cpu_time_s`` (this process's CPU time: the cost without the machine's other load) and
 every episode metric (:func:`train_envs.metrics.episode_metrics`: units in the names,
 the safety costs ``atp_interventions``, ``overrun_m``, ``safety_cost``, ...).
 
@@ -57,6 +58,7 @@ ID_COLUMNS = (
     "status",
     "error",
     "wall_time_s",
+    "cpu_time_s",
 )
 
 
@@ -111,9 +113,15 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         "status": "ok",
         "error": "",
     }
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     if cell.error is not None:
-        return {**rec, "status": "failed", "error": cell.error, "wall_time_s": 0.0}
+        return {
+            **rec,
+            "status": "failed",
+            "error": cell.error,
+            "wall_time_s": 0.0,
+            "cpu_time_s": 0.0,
+        }
     try:
         res = simulate(
             benchmark_scenario(cell.scenario),
@@ -132,6 +140,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
             path.parent.mkdir(parents=True, exist_ok=True)
             res.df.to_csv(path, index=False)
     rec["wall_time_s"] = time.perf_counter() - t0
+    rec["cpu_time_s"] = time.process_time() - c0
     return rec
 
 
@@ -167,8 +176,8 @@ class CellStore:
         df = pd.DataFrame(rows)
         if not len(df):
             return pd.DataFrame(columns=list(ID_COLUMNS))
-        metrics = [c for c in df.columns if c not in ID_COLUMNS]
-        return df[[*ID_COLUMNS, *metrics]]
+        ids = [c for c in ID_COLUMNS if c in df]
+        return df[[*ids, *(c for c in df.columns if c not in ID_COLUMNS)]]
 
 
 def _progress(total: int, enabled: bool) -> Callable[[dict[str, Any]], None]:
