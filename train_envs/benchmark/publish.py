@@ -7,7 +7,7 @@ Usage (the published tables of ``docs/benchmark.md``)::
 
 reads ``<folder>/leaderboard.csv`` and ``results.csv`` and replaces the text between
 ``<!-- leaderboard:<name> -->`` and ``<!-- /leaderboard:<name> -->`` in the document
-with a one-line summary (pairs by status, seeds, total run time) and the leaderboard's
+with a one-line summary (pairs by status, parameters, seeds, runs) and the leaderboard's
 tables (:func:`train_envs.benchmark.leaderboard_markdown`).
 """
 
@@ -37,7 +37,7 @@ def summary_markdown(folder: str | Path) -> str:
     head = (
         f"{len(board)} pairs ({', '.join(f'{n} {k}' for k, n in counts.items())}); "
         f"{'tuned' if tuned else 'default'} parameters; seeds {seeds}; "
-        f"{len(table)} runs, {table['wall_time_s'].sum() / 60:.1f} min of run time in all. "
+        f"{len(table)} runs. "
         "Each value: mean ± half-width of the 95 % t interval over the seeds."
     )
     return head + "\n\n" + leaderboard_markdown(board)
