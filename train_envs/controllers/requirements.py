@@ -9,10 +9,7 @@ construction on the scenario, or its reset to the scenario's control context, ra
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from train_envs.scenarios import Scenario
+from typing import Any
 
 __all__ = ["UnsupportedScenarioError", "unsupported_reason"]
 
@@ -21,8 +18,9 @@ class UnsupportedScenarioError(ValueError):
     """A controller refuses a scenario it cannot run; the message names the requirement."""
 
 
-def unsupported_reason(controller: str, scenario: Scenario) -> str | None:
-    """``None`` if controller ``controller`` (a name) can run ``scenario``, else the reason
+def unsupported_reason(controller: str, scenario: Any) -> str | None:
+    """``None`` if controller ``controller`` (a name) can run ``scenario`` (a
+    :class:`train_envs.scenarios.Scenario`, a layer above: not imported), else the reason
     in one line. An unknown controller name raises the ``ValueError`` of
     :func:`~train_envs.controllers.make_controller`."""
     from train_envs.controllers import list_controllers, make_controller
