@@ -60,7 +60,7 @@ class Budget:
 
 
 BUDGETS: dict[str, Budget] = {
-    "small": Budget("small", pop=5, iters=3, train_seeds=(1000,)),
+    "small": Budget("small", pop=5, iters=2, train_seeds=(1000,)),
     "full": Budget("full", pop=40, iters=100, train_seeds=(1000, 1001, 1002)),
 }
 
