@@ -53,7 +53,10 @@ def _constraints(items: list[str] | None) -> dict[str, float] | None:
 
 
 def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    """Add ``tune`` (and ``tune show``) to ``subparsers``; returns the ``tune`` parser."""
+    """Add ``tune`` (and ``tune show``) to ``subparsers``, and ``benchmark``
+    (:func:`tuners.benchmark.add_benchmark_parser`); returns the ``tune`` parser."""
+    from tuners.benchmark import add_benchmark_parser
+
     p = subparsers.add_parser(
         "tune",
         help="tune an env's controller parameters (MOWOA, PSO, NSGA-II, MOEA/D)",
@@ -194,6 +197,7 @@ def add_tune_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
     pd_.add_argument("study", help="study name")
     pd_.add_argument("--storage", default=DEFAULT_STORAGE, help="Optuna storage URL")
     pd_.set_defaults(func=cmd_delete)
+    add_benchmark_parser(subparsers)
     return p
 
 

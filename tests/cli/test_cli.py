@@ -27,6 +27,7 @@ def test_the_packages_above_register_their_commands():
         "train",
         "evaluate",
         "tune",
+        "benchmark",
         "reproduce",
         "simulate",
     ]
@@ -99,7 +100,7 @@ def test_each_cli_module_is_the_train_envs_command(module):
         text=True,
         check=True,
     ).stdout
-    assert "{list,train,evaluate,tune,reproduce,simulate}" in out
+    assert "{list,train,evaluate,tune,benchmark,reproduce,simulate}" in out
 
 
 def test_seeds_parse_and_bad_ones_name_the_flag():
