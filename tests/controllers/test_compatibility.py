@@ -21,6 +21,7 @@ from train_envs.controllers import (
     UnsupportedScenarioError,
     make_controller,
     requirements,
+    scenario_defaults,
     unsupported_reason,
 )
 from train_envs.scenarios import SCENARIOS, DisturbanceSpec, get_scenario
@@ -37,16 +38,10 @@ STOP_TOL_M = 0.5
 CRUISE_EV_TOL_MPS = 1.0
 
 #: supported pairs that miss the stop tolerance with default parameters (measured:
-#: ``docs/design/compatibility.md``); speed trackers without a position loop on the
-#: time-indexed stopping runs. Strict xfail: a pair that starts passing must leave.
+#: ``docs/design/compatibility.md``). Strict xfail: a pair that starts passing must leave.
 KNOWN_MISSES = {
-    ("pid", "paper004_urban"): "stops 0.83 m short",
-    ("pid", "yizhuang"): "stops 1.56 m short",
-    ("pid", "zurich"): "stops 1.12 m short",
-    ("fuzzy_pid", "paper004_urban"): "stops 0.76 m short (paper 004's own comparator)",
-    ("fuzzy_pid", "yizhuang"): "stops 1.34 m short",
-    ("fuzzy_pid", "zurich"): "stops 0.70 m short",
-    ("afsmc000", "zurich"): "stops 1.56 m long",
+    ("fuzzy_pid", "paper004_urban"): "stops 0.76 m short; paper 004's comparator as reproduced",
+    ("afsmc000", "zurich"): "stops 1.56 m long; speed-only sliding surface, no position loop",
 }
 
 #: the undisturbed scenarios of the acceptance test (the wind variants of paper 000
@@ -106,6 +101,30 @@ def test_refusal_names_the_requirement():
     assert unsupported_reason("sempc", get_scenario("paper000_single_section")) is None
     # without a scenario nothing is checked (the controller checks its context at reset)
     assert make_controller("sempc").name == "sempc"
+
+
+def test_scenario_defaults_leave_the_own_paper_scenarios_alone():
+    yz = get_scenario("yizhuang")
+    assert scenario_defaults("pid", yz) == {"integrate_saturated": True}
+    assert make_controller("pid", yz).integrate_saturated
+    assert not make_controller("pid", yz, integrate_saturated=False).integrate_saturated
+    # paper 001 is pid's own scenario (and distance-indexed), paper 004 fuzzy_pid's
+    assert scenario_defaults("pid", get_scenario("paper001_stopping")) == {}
+    assert scenario_defaults("fuzzy_pid", get_scenario("paper004_urban")) == {}
+    assert scenario_defaults("fuzzy_pid", yz) == {"integrate_saturated": True}
+    # cruise runs have no stop to make the position lag up for
+    assert scenario_defaults("pid", get_scenario("paper003_cruise")) == {}
+    assert scenario_defaults("mpc", yz) == {}
+
+
+def test_integrating_through_saturation_recovers_the_start_lag():
+    """On a time-indexed stop, ∫e dt is the lag behind the timetable: conditional
+    integration forgets what was lost at the saturated start and stops short by it."""
+    sc = get_scenario("yizhuang")
+    derived = simulate(sc, "pid", seed=0)  # integrate_saturated=True by default here
+    cond = simulate(sc, make_controller("pid", sc, integrate_saturated=False), seed=0)
+    assert abs(derived.metrics["stop_error_m"]) <= STOP_TOL_M
+    assert cond.metrics["stop_error_m"] < -1.0
 
 
 def test_requirements_validate_their_fields():

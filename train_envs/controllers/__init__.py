@@ -16,6 +16,7 @@ from train_envs.controllers.requirements import (
     Requirements,
     UnsupportedScenarioError,
     requirements,
+    scenario_defaults,
     unsupported_reason,
 )
 from train_envs.controllers.train_mpc import MultiCarMPC, PointMassMPC
@@ -76,7 +77,8 @@ def make_controller(name: str, scenario: Any = None, **params: float) -> Control
     """Build a controller by name (``scenario`` lets paper controllers pick its settings).
 
     A scenario the controller does not support (:func:`unsupported_reason`) raises
-    :class:`UnsupportedScenarioError` naming the requirement it breaks.
+    :class:`UnsupportedScenarioError` naming the requirement it breaks; options derived
+    from the scenario (:func:`scenario_defaults`) apply under the caller's ``params``.
     """
     check_choice("controller", name, list_controllers())
     if scenario is not None:
@@ -84,6 +86,8 @@ def make_controller(name: str, scenario: Any = None, **params: float) -> Control
         if reason is not None:
             raise UnsupportedScenarioError(reason)
     factory = CONTROLLERS[name]
+    if scenario is not None:
+        params = {**scenario_defaults(name, scenario), **params}
     if "scenario" in inspect.signature(factory).parameters:
         return factory(scenario=scenario, **params)
     return factory(**params)
@@ -110,5 +114,6 @@ __all__ = [
     "list_controllers",
     "make_controller",
     "requirements",
+    "scenario_defaults",
     "unsupported_reason",
 ]

@@ -14,6 +14,7 @@ badly) part-way. The measured matrix behind each declaration:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,6 +27,7 @@ __all__ = [
     "Requirements",
     "UnsupportedScenarioError",
     "requirements",
+    "scenario_defaults",
     "unsupported_reason",
 ]
 
@@ -55,6 +57,8 @@ class Requirements:
         dead_time: whether it accepts an actuator dead time.
         line: what it reads of the line (informative: every scenario carries a track).
         why: the reason behind the narrowest requirement, quoted in refusals.
+        own_scenarios: the scenarios of the controller's own paper, whose reproduction
+            fixes its defaults (:func:`scenario_defaults` derives nothing there).
     """
 
     description: str
@@ -65,6 +69,7 @@ class Requirements:
     dead_time: bool = True
     line: str = "gradient and speed limits"
     why: str = ""
+    own_scenarios: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         check_choice("cars", self.cars, CAR_MODELS, sort=False)
@@ -127,33 +132,53 @@ _CRUISE_MODEL = (
     "and no actuator dynamics"
 )
 
+P000 = (
+    "paper000_single_section",
+    "paper000_multi_section",
+    "paper000_disturbance_constant",
+    "paper000_disturbance_harmonic",
+)
+P001 = ("paper001_stopping",)
+P002 = ("paper002_cruise", "paper002_cruise_feasible")
+P003 = ("paper003_cruise",)
+P004 = ("paper004_urban",)
+
 #: the declarations, one per controller in CONTROLLERS (tests check the two agree)
 REQUIREMENTS: dict[str, Requirements] = {
     "pid": Requirements(
         "speed PID with resistance and gradient feedforward (paper 001's comparator)",
         line=_SINGLE_POINT,
+        own_scenarios=P001,
     ),
     "tracking": Requirements(
-        "reference tracking: feedforward plus proportional speed feedback", line=_SINGLE_POINT
+        "reference tracking: feedforward plus proportional speed feedback",
+        line=_SINGLE_POINT,
+        own_scenarios=P001,
     ),
     "fuzzy_pid": Requirements(
         "PID with fuzzy online correction of its gains (paper 004's comparator)",
         line=_SINGLE_POINT,
+        own_scenarios=P004,
     ),
     "afsmc": Requirements(
-        "adaptive fuzzy sliding-mode control on speed and position error", line=_SINGLE_POINT
+        "adaptive fuzzy sliding-mode control on speed and position error",
+        line=_SINGLE_POINT,
+        own_scenarios=P001,
     ),
     "afsmc000": Requirements(
         "adaptive fuzzy sliding-mode control on speed error (paper 000's comparator)",
         line=_SINGLE_POINT,
+        own_scenarios=P000,
     ),
     "dmc": Requirements(
         "dynamic matrix control with fuzzy softening and correction (paper 004)",
         line=_SINGLE_POINT,
+        own_scenarios=P004,
     ),
     "mpc": Requirements(
         "linear MPC of a point mass with actuator lag and dead-time prediction (paper 001)",
         line="gradient, speed limits and stop (constraints along the horizon)",
+        own_scenarios=P001,
     ),
     "sempc": Requirements(
         "stable economic MPC of the coupled cars, Riccati terminal cost (paper 000)",
@@ -163,6 +188,7 @@ REQUIREMENTS: dict[str, Requirements] = {
         dead_time=False,
         line="gradient, speed limits and stop (constraints along the horizon)",
         why=_COUPLED_CARS,
+        own_scenarios=P000,
     ),
     "mpc000": Requirements(
         "plain MPC of the coupled cars, no terminal cost (paper 000's comparator)",
@@ -172,6 +198,7 @@ REQUIREMENTS: dict[str, Requirements] = {
         dead_time=False,
         line="gradient, speed limits and stop (constraints along the horizon)",
         why=_COUPLED_CARS,
+        own_scenarios=P000,
     ),
     "fuzzy_mpc": Requirements(
         "fuzzy constrained predictive cruise control with actuator compensator (paper 003)",
@@ -180,14 +207,17 @@ REQUIREMENTS: dict[str, Requirements] = {
         dead_time=False,
         line="gradient and speed limits",
         why="its T-S fuzzy model has one force and one speed per car",
+        own_scenarios=P003,
     ),
     "rmpc": Requirements(
         "tube robust MPC of a point mass with lag and dead time (paper 001)",
         line="gradient, speed limits and stop (tightened constraints)",
+        own_scenarios=P001,
     ),
     "rsmpc": Requirements(
         "robust self-triggered tube MPC (paper 001)",
         line="gradient, speed limits and stop (tightened constraints)",
+        own_scenarios=P001,
     ),
     "adaptive_mpc": Requirements(
         "adaptive MPC of the coupled cars on an estimated model (paper 002)",
@@ -198,6 +228,7 @@ REQUIREMENTS: dict[str, Requirements] = {
         dead_time=False,
         line="gradient and speed limits",
         why=_CRUISE_MODEL,
+        own_scenarios=P002,
     ),
     "mpc002": Requirements(
         "the adaptive MPC's nominal twin, estimate frozen (paper 002's comparator)",
@@ -208,6 +239,7 @@ REQUIREMENTS: dict[str, Requirements] = {
         dead_time=False,
         line="gradient and speed limits",
         why=_CRUISE_MODEL,
+        own_scenarios=P002,
     ),
 }
 
@@ -226,3 +258,28 @@ def unsupported_reason(controller: str, scenario: Any) -> str | None:
     if reason is None:
         return None
     return f"{controller} does not support scenario {scenario.name!r}: {reason}"
+
+
+def _integrate_on_timetable(scenario: Any) -> dict[str, Any]:
+    """PID family: integrate the speed error in every step on a time-indexed stopping
+    run, where ∫e dt is the position lag the stop must make up (see ``pid``)."""
+    if scenario.s_stop_m is not None and scenario.reference.mode == "time":
+        return {"integrate_saturated": True}
+    return {}
+
+
+#: controller -> the options it derives from a scenario
+_DERIVED: dict[str, Callable[[Any], dict[str, Any]]] = {
+    "pid": _integrate_on_timetable,
+    "fuzzy_pid": _integrate_on_timetable,
+}
+
+
+def scenario_defaults(controller: str, scenario: Any) -> dict[str, Any]:
+    """Constructor options of ``controller`` derived from ``scenario`` (empty on the
+    controller's own paper scenarios, whose reproductions fix the defaults);
+    :func:`train_envs.controllers.make_controller` applies them under the caller's."""
+    req = requirements(controller)
+    if scenario.name in req.own_scenarios or controller not in _DERIVED:
+        return {}
+    return _DERIVED[controller](scenario)
