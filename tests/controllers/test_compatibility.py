@@ -163,3 +163,14 @@ def test_supported_pair_is_sane_with_defaults(controller, scenario):
         assert abs(m["stop_error_m"]) <= STOP_TOL_M
     else:
         assert m["E_v_mps"] <= CRUISE_EV_TOL_MPS
+
+
+def test_list_controllers_prints_description_and_requirements(capsys):
+    from train_envs.cli import main
+
+    assert main(["list", "controllers"]) == 0
+    out = capsys.readouterr().out
+    for name in CONTROLLERS:
+        req = requirements(name)
+        assert f"{name:14s} {req.description}" in out
+        assert req.summary() in out
