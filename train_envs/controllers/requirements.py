@@ -15,7 +15,7 @@ badly) part-way. The measured matrix behind each declaration:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from train_envs.validation import check_choice
@@ -190,16 +190,6 @@ REQUIREMENTS: dict[str, Requirements] = {
         why=_COUPLED_CARS,
         own_scenarios=P000,
     ),
-    "mpc000": Requirements(
-        "plain MPC of the coupled cars, no terminal cost (paper 000's comparator)",
-        cars="multi",
-        inputs=("per_car",),
-        max_actuator_order=0,
-        dead_time=False,
-        line="gradient, speed limits and stop (constraints along the horizon)",
-        why=_COUPLED_CARS,
-        own_scenarios=P000,
-    ),
     "fuzzy_mpc": Requirements(
         "fuzzy constrained predictive cruise control with actuator compensator (paper 003)",
         cars="multi",
@@ -230,18 +220,18 @@ REQUIREMENTS: dict[str, Requirements] = {
         why=_CRUISE_MODEL,
         own_scenarios=P002,
     ),
-    "mpc002": Requirements(
-        "the adaptive MPC's nominal twin, estimate frozen (paper 002's comparator)",
-        cars="multi",
-        inputs=("per_car",),
-        tasks=("cruise",),
-        max_actuator_order=0,
-        dead_time=False,
-        line="gradient and speed limits",
-        why=_CRUISE_MODEL,
-        own_scenarios=P002,
-    ),
 }
+
+
+# the comparators of papers 000 and 002 share their method's model, hence its needs
+REQUIREMENTS["mpc000"] = replace(
+    REQUIREMENTS["sempc"],
+    description="plain MPC of the coupled cars, no terminal cost (paper 000's comparator)",
+)
+REQUIREMENTS["mpc002"] = replace(
+    REQUIREMENTS["adaptive_mpc"],
+    description="the adaptive MPC's nominal twin, estimate frozen (paper 002's comparator)",
+)
 
 
 def requirements(controller: str) -> Requirements:
