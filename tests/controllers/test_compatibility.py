@@ -4,8 +4,8 @@ construction with its reason, and the supported pairs are sane with default para
 The short-horizon matrix (all of ``CONTROLLERS`` × all of ``SCENARIOS``, which hold the
 two real lines, Yizhuang and Zürich) always runs. The whole-episode acceptance runs on
 the undisturbed scenarios: a CI-sized subset by default (paper 001's stop and the Zürich
-run), every scenario with ``TRAIN_ENVS_FULL_MATRIX=1`` (about 10 min on one core; the
-measured table: ``docs/design/compatibility.md``).
+run), every scenario with ``TRAIN_ENVS_FULL_MATRIX=1`` (98 pairs, 26 min wall on the
+shared 2-core machine at load 7–14; the measured table: ``docs/design/compatibility.md``).
 """
 
 from __future__ import annotations
