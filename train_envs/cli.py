@@ -29,7 +29,7 @@ def _parse_params(items: list[str] | None) -> dict[str, float]:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from train_envs.controllers import list_controllers
+    from train_envs.controllers import list_controllers, requirements
     from train_envs.lines import list_tracks
     from train_envs.scenarios import SCENARIOS
     from train_envs.trains import get_train, list_trains
@@ -43,7 +43,9 @@ def cmd_list(args: argparse.Namespace) -> int:
     if what in ("all", "controllers"):
         print("Controllers:")
         for name in list_controllers():
-            print(f"  {name}")
+            req = requirements(name)
+            print(f"  {name:14s} {req.description}")
+            print(f"  {'':14s}   needs: {req.summary()}")
     if what in ("all", "trains"):
         print("Trains:")
         for name in list_trains():

@@ -290,7 +290,9 @@ def test_bad_params_raise():
         GradientEstimator(np.zeros((2, 2)), lam=0.1, alpha=0.0)
     # a single-input scenario cannot run a per-car MPC
     sc = get_scenario("paper001_stopping")
-    ctrl = make_controller("adaptive_mpc", sc)
+    with pytest.raises(ValueError, match="needs a multi-car train"):
+        make_controller("adaptive_mpc", sc)
+    ctrl = make_controller("adaptive_mpc")
     with pytest.raises(ValueError, match="per-car inputs"):
         ctrl.reset(sc.control_context())
 

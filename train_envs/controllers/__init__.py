@@ -12,6 +12,13 @@ from train_envs.controllers.base import ControlContext, Controller, Observation,
 from train_envs.controllers.dmc import DMCController
 from train_envs.controllers.fuzzy_pid import FuzzyPIDController
 from train_envs.controllers.pid import PIDController
+from train_envs.controllers.requirements import (
+    Requirements,
+    UnsupportedScenarioError,
+    requirements,
+    scenario_defaults,
+    unsupported_reason,
+)
 from train_envs.controllers.train_mpc import MultiCarMPC, PointMassMPC
 from train_envs.controllers.tube import RobustSelfTriggeredMPC, TubeMPC
 from train_envs.validation import check_choice
@@ -67,9 +74,20 @@ def list_controllers() -> list[str]:
 
 
 def make_controller(name: str, scenario: Any = None, **params: float) -> Controller:
-    """Build a controller by name (``scenario`` lets paper controllers pick its settings)."""
+    """Build a controller by name (``scenario`` lets paper controllers pick its settings).
+
+    A scenario the controller does not support (:func:`unsupported_reason`) raises
+    :class:`UnsupportedScenarioError` naming the requirement it breaks; options derived
+    from the scenario (:func:`scenario_defaults`) apply under the caller's ``params``.
+    """
     check_choice("controller", name, list_controllers())
+    if scenario is not None:
+        reason = unsupported_reason(name, scenario)
+        if reason is not None:
+            raise UnsupportedScenarioError(reason)
     factory = CONTROLLERS[name]
+    if scenario is not None:
+        params = {**scenario_defaults(name, scenario), **params}
     if "scenario" in inspect.signature(factory).parameters:
         return factory(scenario=scenario, **params)
     return factory(**params)
@@ -88,9 +106,14 @@ __all__ = [
     "NominalCruiseMPC",
     "PIDController",
     "PointMassMPC",
+    "Requirements",
     "RobustSelfTriggeredMPC",
     "TubeMPC",
     "TunableParam",
+    "UnsupportedScenarioError",
     "list_controllers",
     "make_controller",
+    "requirements",
+    "scenario_defaults",
+    "unsupported_reason",
 ]

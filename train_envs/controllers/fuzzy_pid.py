@@ -28,7 +28,8 @@ correction lies in [−dk, dk]. Choices where the sources are silent:
   Hägglund, *Advanced PID Control*, 2006);
 * gains are clipped at zero (the corrections never flip a gain's sign);
 * anti-windup, rate limit and envelope as in ``pid``: the integrator is frozen while
-  the command saturates in the direction of the error; the command is clipped to the
+  the command saturates in the direction of the error (``integrate_saturated=True``:
+  never, as in ``pid``, for time-indexed stopping runs); the command is clipped to the
   speed-dependent envelope ``[−B(v), F(v)]`` and to ``du_max_Nps`` per input; per-car
   scenarios get the whole-train force split by car mass share
   (:func:`train_envs.controllers._common.distribute`).
@@ -120,9 +121,14 @@ class FuzzyPIDController(Controller):
     )
 
     def __init__(
-        self, feedforward: bool = True, inference: str = "product", **params: float
+        self,
+        feedforward: bool = True,
+        inference: str = "product",
+        integrate_saturated: bool = False,
+        **params: float,
     ) -> None:
         self.feedforward = feedforward
+        self.integrate_saturated = bool(integrate_saturated)
         self.rules = RuleBase2(
             np.stack([DKP_TABLE, DKI_TABLE, DKD_TABLE]), inference=inference, names=("e", "ec")
         )
@@ -195,6 +201,7 @@ class FuzzyPIDController(Controller):
             out = distribute(ctx, u, v, obs.u_prev_N, self._shares)
             u_sat = float(np.sum(out))
         clipped = abs(u_sat - u) > 1e-9 * max(1.0, hi - lo)
-        if not clipped or (u > u_sat and e < 0) or (u < u_sat and e > 0):
+        free = self.integrate_saturated or not clipped
+        if free or (u > u_sat and e < 0) or (u < u_sat and e > 0):
             self._integral += ki * e * dt  # conditional integration (anti-windup)
         return out, {"v_ref": v_ref, "error": e, "kp": kp, "ki": ki, "kd": kd}

@@ -12,6 +12,13 @@ while the command saturates (conditional integration anti-windup, Åström & Hä
 *Advanced PID Control*, 2006, §3.5), and the command change per step is limited by the
 scenario's rate limit ``du_max_Nps``. ``k_p = 0`` etc. gives P/PI/PD variants; with
 k_i = k_d = 0 it is the simple reference-tracking baseline (feedforward + P).
+
+``integrate_saturated=True`` integrates e in every step. On a time-indexed reference
+∫e dt = s_ref(t) − s is the position lag behind the timetable, which a stopping run
+must make up; conditional integration forgets the lag built up while the command is
+saturated (the start from standstill), and the train stops short by that much
+(measured: ``docs/design/compatibility.md``). ``make_controller`` sets it on the
+time-indexed stopping runs (:mod:`train_envs.controllers.requirements`).
 """
 
 from __future__ import annotations
@@ -36,8 +43,11 @@ class PIDController(Controller):
         TunableParam("kd", 0.0, 2.0, 0.0, description="derivative gain [-]"),
     )
 
-    def __init__(self, feedforward: bool = True, **params: float) -> None:
+    def __init__(
+        self, feedforward: bool = True, integrate_saturated: bool = False, **params: float
+    ) -> None:
         self.feedforward = feedforward
+        self.integrate_saturated = bool(integrate_saturated)
         super().__init__(**params)
 
     def reset(self, ctx: ControlContext) -> None:
@@ -73,7 +83,8 @@ class PIDController(Controller):
         if math.isfinite(ctx.du_max_Nps):
             du = ctx.du_max_Nps * dt * ctx.n_inputs
             u_sat = min(max(u_sat, u_prev - du), u_prev + du)
-        if u_sat == u or (u > u_sat and e < 0) or (u < u_sat and e > 0):
+        sat_ok = self.integrate_saturated
+        if sat_ok or u_sat == u or (u > u_sat and e < 0) or (u < u_sat and e > 0):
             self._integral += e * dt  # conditional integration (anti-windup)
         out = np.full(ctx.n_inputs, u_sat / ctx.n_inputs)
         return out, {"v_ref": v_ref, "error": e}
