@@ -195,7 +195,7 @@ def test_publish_replaces_the_block(small, tmp_path):
     doc.write_text("intro\n<!-- leaderboard:default -->\nold\n<!-- /leaderboard:default -->\nend\n")
     publish("default", out, doc)
     text = doc.read_text()
-    assert text.startswith("intro\n") and text.endswith("end\n") and "old" not in text
+    assert text.startswith("intro\n") and text.endswith("end\n") and "\nold\n" not in text
     assert "3 pairs (2 ok, 1 unsupported); default parameters; seeds [0, 1]; 4 runs" in text
     with pytest.raises(ValueError, match="no block"):
         publish("tuned", out, doc)
