@@ -2,8 +2,8 @@
 
 The engine's matrices are small (tens to a few hundred rows); OpenBLAS's thread pool
 only adds synchronisation there, and on a busy machine (more runnable threads than
-cores) a parameter change of the train MPCs became 6-40x dearer with its default
-threads (measurements: ``docs/design/mpc_engine.md``).  :func:`single_thread_blas`
+cores) a parameter change of the train MPCs costs 6-40x more with its default
+threads than with one (measurements: ``docs/design/mpc_engine.md``).  :func:`single_thread_blas`
 limits every loaded BLAS to one thread for the duration of a ``with`` block through
 threadpoolctl; nested blocks cost nothing (a depth counter), so an env step can hold
 the limit while the controllers' rebuilds inside it ask for it again.
