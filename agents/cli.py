@@ -173,7 +173,7 @@ MAIN_METRICS = (
     "stop_error_m",
     "time_error_s",
     "E_v_mps",
-    "ITAE_ms",
+    "ITAE_m_s",
     "comfort_mean_abs_jerk_mps3",
     "energy_kWh",
     "max_overspeed_mps",

@@ -115,7 +115,7 @@ def main() -> None:
         params[name.strip()] = float(value)
     df, info = run(params, args.seed)
     plot(df, info, args.out)
-    keys = ("stop_error_m", "time_error_s", "E_v_mps", "ITAE_ms",
+    keys = ("stop_error_m", "time_error_s", "E_v_mps", "ITAE_m_s",
             "comfort_mean_abs_jerk_mps3", "energy_kWh")
     print(", ".join(f"{k} {info[k]:.4g}" for k in keys))
     print(

@@ -50,7 +50,7 @@ PAPER004_STUDY = "paper004-mowoa-16x8-s0-{code}"
 #: metric column → (label, higher is better)
 METRICS = {
     "E_p_m": ("stop error E_p [m]", False),
-    "ITAE_ms": ("ITAE [m·s]", False),
+    "ITAE_m_s": ("ITAE [m·s]", False),
     "time_error_s": ("time error [s]", False),
     "comfort_mean_abs_jerk_mps3": ("comfort: mean abs jerk [m/s³]", False),
     "energy_kWh": ("energy [kWh]", False),

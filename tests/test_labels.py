@@ -10,7 +10,7 @@ from tuners import plots
 
 
 def test_metric_labels_carry_units():
-    assert metric_label("ITAE_ms") == "ITAE [m·s]"  # position error × time, not milliseconds
+    assert metric_label("ITAE_m_s") == "ITAE [m·s]"  # position error × time, not milliseconds
     assert metric_label("energy_kWh") == "energy [kWh]"
     assert metric_label("max_coupler_force_kN") == "max coupler force [kN]"  # by suffix
     assert metric_label("whatever") == "whatever"
@@ -19,7 +19,7 @@ def test_metric_labels_carry_units():
 def test_printed_numbers_have_no_roundoff_noise_and_no_g_prefix():
     assert format_number(1.009e-11) == "0" and format_number(-3e-12) == "0"
     assert format_number(475.603739) == "475.6" and format_number(np.nan) == "NaN"
-    t = pd.DataFrame({"point": ["a"], "ITAE_ms": [1.0], "g:time_error_s": [-4.6]})
+    t = pd.DataFrame({"point": ["a"], "ITAE_m_s": [1.0], "g:time_error_s": [-4.6]})
     text = format_table(t, bounds={"time_error_s": 5.0})
     assert "g:" not in text and "time_error_s (≤ 5)" in text and "0.4" in text
     assert "time_error_s margin" in format_table(t)

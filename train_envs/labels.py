@@ -2,7 +2,7 @@
 
 :data:`METRIC_LABELS` is the one table from a metric column of
 :func:`train_envs.metrics.episode_metrics` (SI suffixes: ``_m``, ``_mps``, ``_kWh``,
-...) to an axis label with its unit (``ITAE_ms`` → ``ITAE [m·s]``, the integral of
+...) to an axis label with its unit (``ITAE_m_s`` → ``ITAE [m·s]``, the integral of
 |position error| × time, not milliseconds). :func:`metric_label` falls back to the
 suffix for other columns. :func:`format_number` and :func:`format_table` print values
 with a fixed number of significant digits and round-off noise (``1.009e-11`` for an
@@ -20,7 +20,7 @@ __all__ = ["METRIC_LABELS", "format_number", "format_table", "metric_label"]
 
 #: metric column -> label with unit
 METRIC_LABELS: dict[str, str] = {
-    "ITAE_ms": "ITAE [m·s]",
+    "ITAE_m_s": "ITAE [m·s]",
     "E_p_m": "stop error E_p [m]",
     "stop_error_m": "stop error [m]",
     "E_x_m": "position error E_x [m]",

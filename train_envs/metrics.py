@@ -145,7 +145,7 @@ def episode_metrics(
         m["max_coupler_deformation_m"] = _nanmax_abs(col("coupler_def_max_m"))
 
     # --- paper 004
-    m["ITAE_ms"] = float(np.sum(t * abs_ev) * dt_s)
+    m["ITAE_m_s"] = float(np.sum(t * abs_ev) * dt_s)
     t_arr = float(t[-1])
     m["running_time_s"] = t_arr - float(t[0])
     if scheduled_time_s is not None:

@@ -12,7 +12,7 @@
   value the controller runs with;
 * **objectives** — episode metrics of :func:`train_envs.envs.evaluation.evaluate_env_params`
   (the runner's :func:`~train_envs.simulation.evaluate_params`), each averaged
-  over the scenario seeds: by default paper 004's five, ``itae`` (``ITAE_ms``),
+  over the scenario seeds: by default paper 004's five, ``itae`` (``ITAE_m_s``),
   ``stop`` (``E_p_m`` = |stopping error|), ``time`` (``time_error_s``), ``comfort``
   (``comfort_mean_abs_jerk_mps3``), ``energy`` (``energy_kWh``), dropping ``stop`` /
   ``time`` where the scenario has no stop / schedule; any metric column name works too;
@@ -50,7 +50,7 @@ from pymoo.core.problem import Problem
 from train_envs.controllers.params import SPACES, ParamSpace
 
 OBJECTIVE_ALIASES: dict[str, str] = {
-    "itae": "ITAE_ms",
+    "itae": "ITAE_m_s",
     "stop": "E_p_m",
     "time": "time_error_s",
     "comfort": "comfort_mean_abs_jerk_mps3",
@@ -90,7 +90,7 @@ def metric_columns(df: Any) -> list[str]:
 
 
 def objective_column(name: str) -> str:
-    """Metric column of an objective alias (``itae`` → ``ITAE_ms``); other names pass."""
+    """Metric column of an objective alias (``itae`` → ``ITAE_m_s``); other names pass."""
     return OBJECTIVE_ALIASES.get(name.lower(), name)
 
 

@@ -222,7 +222,7 @@ def test_harness_identical_seeds_identical_tables(runs, tmp_path):
         "env_steps",
     ]
     assert len(a) == 8 and set(a["driver"]) == {"ppo", "kp05", "pid", "tracking"}
-    assert {"stop_error_m", "E_v_mps", "energy_kWh", "ITAE_ms"} <= set(a.columns)
+    assert {"stop_error_m", "E_v_mps", "energy_kWh", "ITAE_m_s"} <= set(a.columns)
     assert a.loc[a["driver"] == "tracking", "return"].isna().all()
     s = summary(a, ["return", "stop_error_m"])
     assert s.shape == (4, 4) and ("stop_error_m", "std") in s.columns

@@ -43,7 +43,7 @@ def test_tidy_table_holds_every_cell_and_metric(small):
         ("pid", 0), ("pid", 1), ("dmc", 0), ("dmc", 1)
     }  # fmt: skip
     assert (t["status"] == "ok").all() and (t["parameters"] == "{}").all()
-    for col in ("scenario", "controller", "parameters", "seed", "E_p_m", "ITAE_ms",
+    for col in ("scenario", "controller", "parameters", "seed", "E_p_m", "ITAE_m_s",
                 "safety_cost", "atp_interventions", "overrun_m", "max_overspeed_mps"):  # fmt: skip
         assert col in t, col
     # a cell is the runner's episode: the same metrics as simulate()

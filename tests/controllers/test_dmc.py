@@ -314,7 +314,7 @@ def test_paper004_acceptance(urban):
     assert m["stopped"] == 1.0
     assert m["E_v_mps"] <= base["fuzzy_pid"]["E_v_mps"]
     assert m["E_v_mps"] <= base["afsmc"]["E_v_mps"]
-    assert m["ITAE_ms"] < base["fuzzy_pid"]["ITAE_ms"]
+    assert m["ITAE_m_s"] < base["fuzzy_pid"]["ITAE_m_s"]
     for key in INFO_KEYS:
         assert all(key in i for i in infos)
     assert not any(i["fallback"] for i in infos)
@@ -538,7 +538,7 @@ def test_classic_law_steps_are_the_qp_optimum():
     assert qp_a <= 0.25 * n  # the bounds bind on a minority of the steps (12 % here)
     assert qp_a > 0  # ... but they do bind: both paths are exercised
     np.testing.assert_allclose(a.df["v_mps"], b.df["v_mps"], rtol=0, atol=1e-4)
-    for key in ("ITAE_ms", "E_p_m", "energy_kWh", "comfort_mean_abs_jerk_mps3"):
+    for key in ("ITAE_m_s", "E_p_m", "energy_kWh", "comfort_mean_abs_jerk_mps3"):
         assert a.metrics[key] == pytest.approx(b.metrics[key], rel=1e-3), key
     with pytest.raises(ValueError, match="classic_law"):
         DMCController(classic_law="yes")

@@ -127,7 +127,7 @@ def test_metrics_on_a_hand_made_run():
     assert m["E_x_m"] == pytest.approx(2.0)
     assert m["stop_error_m"] == pytest.approx(-2.0)
     assert m["time_error_s"] == pytest.approx(1.0)
-    assert m["ITAE_ms"] == pytest.approx(t.sum())
+    assert m["ITAE_m_s"] == pytest.approx(t.sum())
     assert m["command_switches"] == 1
     assert m["energy_kWh"] == pytest.approx(1 / 0.9)
     assert m["E_u_N2s"] == pytest.approx(5 * 100.0**2)

@@ -205,7 +205,7 @@ def test_env_problem_mapping_objectives_and_penalty():
     p = EnvTuningProblem(PID)
     assert p.var_names == ["kp", "ki", "kd"]
     assert "time_error_s" not in p.objective_columns  # no schedule in 001's stopping run
-    assert p.objective_columns[:2] == ("ITAE_ms", "E_p_m") and p.n_ieq_constr == 1
+    assert p.objective_columns[:2] == ("ITAE_m_s", "E_p_m") and p.n_ieq_constr == 1
     x0 = p.default_x()
     assert p.x_to_params(x0) == pytest.approx(p.defaults)
     assert np.all(p.xl == -1) and np.all(p.xu == 1)
@@ -214,7 +214,7 @@ def test_env_problem_mapping_objectives_and_penalty():
     assert native.x_to_params(native.params_to_x({"kp": 2.0}))["kp"] == pytest.approx(2.0)
     urban = EnvTuningProblem("TrainEnvs/Urban004FuzzyPID-v0", seeds=[0])
     assert urban.objective_columns == (
-        "ITAE_ms",
+        "ITAE_m_s",
         "E_p_m",
         "time_error_s",
         "comfort_mean_abs_jerk_mps3",

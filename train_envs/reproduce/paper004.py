@@ -30,7 +30,7 @@ CONFIG = {"disturbance": {"mass_factor_range": [0.9, 1.15], "random_bound_mps2":
 #: 004's five objectives (our metric columns) and the paper's change vs Fuzzy-PID [%]
 OBJECTIVES = {
     "energy_kWh": ("energy", -5.9),
-    "ITAE_ms": ("ITAE", -39.6),
+    "ITAE_m_s": ("ITAE", -39.6),
     "time_error_s": ("time error", -33.2),
     "E_p_m": ("distance error", -12.4),
     "comfort_mean_abs_jerk_mps3": ("comfort (mean |jerk|)", 7.1),
