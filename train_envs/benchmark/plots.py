@@ -14,6 +14,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from train_envs.benchmark.leaderboard import HEADLINE
+from train_envs.labels import format_number
 from train_envs.plotting import comparison_figure, new_figure
 
 __all__ = ["heatmap_figure", "overlay_figure"]
@@ -68,7 +69,7 @@ def heatmap_figure(board: pd.DataFrame, metrics: Sequence[str] | None = None) ->
                 if st == "unsupported"
                 else "×"
                 if st in ("failed", "missing")
-                else f"{v:.2g}"
+                else format_number(v, 2)
                 if np.isfinite(v)
                 else ""
             )
