@@ -19,6 +19,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from train_envs.labels import format_number
+
 __all__ = ["HEADLINE", "leaderboard", "leaderboard_markdown", "mean_ci95", "primary_metric"]
 
 #: headline metric -> (label, unit) for tables and plots
@@ -114,7 +116,8 @@ def _cell(row: pd.Series, m: str) -> str:
     if mean is None or not isinstance(mean, float) or math.isnan(mean):
         return ""
     ci = row.get(f"{m}_ci95")
-    return f"{mean:.3g}" + ("" if ci is None or math.isnan(ci) else f" ± {ci:.2g}")
+    half = "" if ci is None or math.isnan(ci) else f" ± {format_number(ci, 2)}"
+    return format_number(mean, 3) + half
 
 
 def leaderboard_markdown(board: pd.DataFrame, metrics: Sequence[str] | None = None) -> str:
