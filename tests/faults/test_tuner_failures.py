@@ -179,8 +179,9 @@ def test_driver_kill_leaves_no_process_after_10_s(tmp_path):
 
 def test_ctrl_c_is_one_line_and_exit_130(tmp_path):
     dbfile = tmp_path / "runs.db"
+    # a budget far beyond what runs before the interrupt (the lockstep default is fast)
     argv = [sys.executable, "-m", "train_envs.cli", "tune", "--env", PID, "--pop", "6",
-            "--iters", "50", "--workers", "2", "--objectives", "itae", "stop", "--storage",
+            "--iters", "5000", "--workers", "2", "--objectives", "itae", "stop", "--storage",
             f"sqlite:///{dbfile}", "--study", "c", "--no-progress"]  # fmt: skip
     proc = subprocess.Popen(argv, env=ENV, cwd=tmp_path, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
