@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
+import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
@@ -153,6 +154,41 @@ def time_series_figure(df: pd.DataFrame, columns: list[str], *, title: str = "")
         ax.set_ylabel(col)
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("t_s")
+    if title:
+        axes[0, 0].set_title(title)
+    fig.tight_layout()
+    return fig
+
+
+def parameter_schedule_figure(
+    schedules: Mapping[str, pd.DataFrame],
+    *,
+    log: Sequence[str] = (),
+    title: str = "",
+) -> Figure:
+    """The parameters an agent set at each env step: one panel per parameter.
+
+    ``schedules`` maps a label (``"PPO"``, ``"defaults"``) to a DataFrame with one row
+    per env step, an ``env_step`` column (else the row number) and one column per
+    parameter (``info["params"]`` of each step); every label's parameters are drawn as
+    steps held until the next decision, the later labels dashed. Parameters named in
+    ``log`` get a log axis (the env's log-scaled weights).
+    """
+    if not schedules:
+        raise ValueError("schedules must hold at least one labelled DataFrame")
+    first = next(iter(schedules.values()))
+    names = [c for c in first.columns if c != "env_step"]
+    fig, axes = new_figure((9, 1.7 * len(names) + 0.8), len(names), 1, sharex=True, squeeze=False)
+    for ax, name in zip(axes[:, 0], names, strict=True):
+        for k, (label, df) in enumerate(schedules.items()):
+            x = df["env_step"] if "env_step" in df else np.arange(len(df))
+            ax.step(x, df[name], where="post", ls="-" if k == 0 else "--", label=label)
+        if name in log:
+            ax.set_yscale("log")
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    axes[-1, 0].set_xlabel("env step (decision)")
     if title:
         axes[0, 0].set_title(title)
     fig.tight_layout()
