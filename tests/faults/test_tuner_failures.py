@@ -177,14 +177,21 @@ def test_driver_kill_leaves_no_process_after_10_s(tmp_path):
     assert len(kids) >= 2 and left == []
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_is_one_line_and_exit_130(tmp_path):
     dbfile = tmp_path / "runs.db"
     # a budget far beyond what runs before the interrupt (the lockstep default is fast)
     argv = [sys.executable, "-m", "train_envs.cli", "tune", "--env", PID, "--pop", "6",
             "--iters", "5000", "--workers", "2", "--objectives", "itae", "stop", "--storage",
             f"sqlite:///{dbfile}", "--study", "c", "--no-progress"]  # fmt: skip
+    # SIGINT as a terminal delivers it, even when this suite runs as a background job
+    # (which starts with SIGINT ignored, and a child inherits that)
     proc = subprocess.Popen(argv, env=ENV, cwd=tmp_path, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_default_sigint)  # fmt: skip
     wait_for_trials(dbfile, 3, proc, timeout=180)
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: the whole process group
     out, err = proc.communicate(timeout=60)
