@@ -29,6 +29,7 @@ from train_envs.controllers.batch import (
 )
 from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.dmc.qp import UNCONSTRAINED_INFO
+from train_envs.controllers.fuzzy import trapmf
 
 __all__ = ["BatchDMC", "batchable_dmc"]
 
@@ -162,27 +163,17 @@ class BatchDMC:
             0.0,
             np.where(e * edot < 0.0, np.where(sh.t_big < ratio, sh.t_big, ratio), sh.t_big),
         )
-        mu_t = np.where(t_r == 0.0, 1.0, self._trap(t_r, *sh.t_trap))
+        mu_t = np.where(t_r == 0.0, 1.0, trapmf(t_r, *sh.t_trap))
         a, b, c, d = sh.y_trap
         x = y_pred - y_r
         if a == -d and b == -c and b - a == d - c and b > a:
             ax = np.abs(x)
             mus = np.where(ax <= c, 1.0, np.where(ax >= d, 0.0, (d - ax) / (d - c)))
         else:
-            mus = self._trap(x, a, b, c, d)
+            mus = trapmf(x, a, b, c, d)
         mu_y = np.add.reduce(mus, axis=1) / mus.shape[1]
         J = np.where(mu_y < mu_t, mu_y, mu_t) if sh.combine == "min" else mu_t * mu_y
         return t_r, J
-
-    @staticmethod
-    def _trap(x: np.ndarray, a: float, b: float, c: float, d: float) -> np.ndarray:
-        """:func:`~train_envs.controllers.fuzzy.trapmf_scalar` elementwise."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            up = np.where(x >= b, 1.0, (x - a) / (b - a) if b > a else 0.0)
-            down = np.where(x <= c, 1.0, (d - x) / (d - c) if d > c else 0.0)
-        m = np.where(up < down, up, down)
-        m = np.where(m > 1.0, 1.0, np.where(m < 0.0, 0.0, m))
-        return np.where(np.isnan(up) | np.isnan(down), np.nan, m)
 
     def _alpha(self, J: np.ndarray, ix: np.ndarray) -> np.ndarray:
         J = np.where(1.0 < J, 1.0, J)
