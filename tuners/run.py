@@ -209,6 +209,14 @@ class TuneResult:
         """Tchebycheff values of objective rows under this run's weights/normalisation."""
         return tchebycheff(np.atleast_2d(F), self.target_weights, self.ideal, self.nadir)
 
+    def _points(self) -> dict[str, np.ndarray]:
+        """The default point and, if any, the selected one (unit-cube coordinates)."""
+        assert isinstance(self.problem, EnvTuningProblem)
+        points = {"defaults": self.problem.default_x()}
+        if self.selected is not None:
+            points["selected"] = np.asarray(self.selected["x"], float)
+        return points
+
     def compare_on_seeds(
         self, seeds: Sequence[int], points: Mapping[str, np.ndarray] | None = None
     ) -> pd.DataFrame:
@@ -222,9 +230,7 @@ class TuneResult:
             raise TypeError("compare_on_seeds needs an EnvTuningProblem")
         prob = self.problem.with_seeds(seeds)
         if points is None:
-            points = {"defaults": prob.default_x()}
-            if self.selected is not None:
-                points["selected"] = np.asarray(self.selected["x"], float)
+            points = self._points()
         rows = []
         from tuners.problem import run_task
 
@@ -244,7 +250,9 @@ class TuneResult:
 
         Each point is run once on scenario ``seed`` with the env's episodes, exactly as the
         tuner evaluated it; use the result with
-        :func:`train_envs.plotting.speed_distance_figure` for an overlay.
+        :func:`train_envs.plotting.comparison_figure` for an overlay. Keys: ``defaults``
+        and ``selected``, or ``selected (= defaults)`` when the selected point is the
+        default point (its run is then the same).
         """
         import train_envs  # noqa: F401  (registers the ids)
         from train_envs.envs.evaluation import evaluate_env_params
@@ -253,9 +261,11 @@ class TuneResult:
             raise TypeError("trajectories needs an EnvTuningProblem")
         prob = self.problem
         if points is None:
-            points = {"defaults": prob.default_x()}
-            if self.selected is not None:
-                points["selected"] = np.asarray(self.selected["x"], float)
+            points = self._points()
+            if "selected" in points and np.array_equal(points["selected"], points["defaults"]):
+                # the same point runs the same episode: the name says why one curve of a
+                # figure hides the other
+                points["selected (= defaults)"] = points.pop("selected")
         out: dict[str, pd.DataFrame] = {}
         for name, x in points.items():
             frames: dict[int, pd.DataFrame] = {}

@@ -267,6 +267,11 @@ def test_tune_env_records_every_evaluation_once(tmp_path):
     # held-out seeds: defaults and selected, scored with the run's normalisation
     ho = r.compare_on_seeds([7])
     assert list(ho["point"]) == ["defaults", "selected"] and ho["tchebycheff"].notna().all()
+    # the runs of a figure: a selection equal to the defaults is named so
+    r.selected = {**r.selected, "x": r.problem.default_x()}
+    runs = r.trajectories(7)
+    assert list(runs) == ["defaults", "selected (= defaults)"]
+    assert runs["defaults"].equals(runs["selected (= defaults)"])
     # a second run on the same study without resume is refused
     with pytest.raises(ValueError, match="resume"):
         tune(
