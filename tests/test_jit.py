@@ -29,6 +29,17 @@ def test_compiled_twin_calls_compiled_helpers_and_leaves_python_alone():
     assert _jit.compiled(outer) is fast  # made once per process
 
 
+def test_a_helper_from_another_module_finds_its_own_constants():
+    if not _jit.enabled():
+        pytest.skip("numba not available")
+    # the helper reads SCALE, a global of its own module that the kernel's lacks
+    scaled = _source_function("SCALE = 3.0\ndef scaled(x):\n    return SCALE * x\n", "scaled")
+    outer = _source_function("def outer2(xs):\n    return scaled(xs[0]) + 1.0\n", "outer2")
+    outer.__globals__["scaled"] = scaled
+    fast = _jit.compiled(outer, {"scaled": scaled})
+    assert fast(np.array([2.0])) == outer([2.0]) == 7.0
+
+
 def test_compiled_is_none_when_disabled(monkeypatch):
     monkeypatch.setenv("TRAIN_ENVS_NO_JIT", "1")
     f = _source_function("def f(x):\n    return x\n", "f")
