@@ -1,7 +1,7 @@
 """Per-member-step cost of the lockstep evaluation against B single evaluations.
 
 Run: ``python benchmarks/bench_lockstep.py [--ids Urban004-v0 ...] [--sizes 1 8 40]
-[--rounds 3] [--env-steps 60] [--cpu-time]``. For each env id and population size B,
+[--rounds 3] [--env-steps 60] [--cpu-time] [--split]``. For each env id and population size B,
 B parameter vectors are drawn uniformly from the env's parameter box (seeded); one
 round times :func:`train_envs.envs.batch.evaluate_env_params_batch` on all B, then the
 B single :func:`~train_envs.envs.evaluation.evaluate_env_params` calls (``reuse_env``,
@@ -11,6 +11,12 @@ with the episode capped at ``--env-steps`` env steps (0: whole episodes). Report
 [µs] and the median of the per-round ratios single / lockstep (the per-member
 throughput gain). One untimed warm-up of both paths first (envs, QP cores and the
 compiled kernels built). ``--cpu-time`` times with the process CPU time.
+
+``--split``: instead, where one lockstep evaluation of the largest B spends its time
+(one warm-up, then one timed run with the DMC's QP step, the controller step, the QP
+core's ``LinearMPC.solve`` and its OSQP call wrapped in timers): the QP members split
+into the DMC's wrapping, the core's bookkeeping and the OSQP call, the batched law,
+and the rest (runner, plant, metrics). The timers add a few % to the run.
 """
 
 from __future__ import annotations
@@ -80,6 +86,60 @@ def run(
     }
 
 
+def split(env_id: str, B: int, env_steps: int) -> None:
+    """Print the time split of one lockstep evaluation of B members (see ``--split``)."""
+    from train_envs.controllers.dmc.batch import BatchDMC
+    from train_envs.mpc.linear_mpc import LinearMPC
+    from train_envs.mpc.osqp_backend import _Backend
+
+    cfg = {"max_episode_steps": env_steps} if env_steps else {}
+    plist = _params(env_id, B, seed=B)
+    evaluate_env_params_batch(env_id, plist, [0], config=cfg)
+    acc: dict[str, list[float]] = {}
+
+    def timed(cls: type, name: str) -> Callable[[], None]:
+        fn = getattr(cls, name)
+        cell = acc.setdefault(f"{cls.__name__}.{name}", [0.0, 0])
+
+        def wrapper(*a, **k):
+            t0 = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                cell[0] += time.perf_counter() - t0
+                cell[1] += 1
+
+        setattr(cls, name, wrapper)
+        return lambda: setattr(cls, name, fn)
+
+    undo = [
+        timed(BatchDMC, "compute"),
+        timed(BatchDMC, "_qp_step"),
+        timed(LinearMPC, "solve"),
+        timed(_Backend, "step"),
+    ]
+    try:
+        t0 = time.perf_counter()
+        evaluate_env_params_batch(env_id, plist, [0], config=cfg)
+        total = time.perf_counter() - t0
+    finally:
+        for u in undo:
+            u()
+    law, qp = acc["BatchDMC.compute"][0], acc["BatchDMC._qp_step"]
+    core, osqp = acc["LinearMPC.solve"][0], acc["_Backend.step"][0]
+    steps = int(acc["BatchDMC.compute"][1])
+    rows = [
+        ("QP members: DMC wrapping", qp[0] - core),
+        ("QP members: LinearMPC bookkeeping", core - osqp),
+        ("QP members: OSQP call", osqp),
+        ("batched law (BatchDMC.compute less QP)", law - qp[0]),
+        ("runner, plant, metrics", total - law),
+    ]
+    print(f"{env_id} B={B}: {total:.3f} s, {steps} population steps, {int(qp[1])} QP steps")
+    for name, t in rows:
+        print(f"  {name:<42} {t:8.3f} s {100 * t / total:5.1f} %")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ids", nargs="+", default=list(IDS))
@@ -87,7 +147,12 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--env-steps", type=int, default=60)
     ap.add_argument("--cpu-time", action="store_true")
+    ap.add_argument("--split", action="store_true", help="the time split of the largest B")
     args = ap.parse_args()
+    if args.split:
+        for name in args.ids:
+            split(name if "/" in name else f"TrainEnvs/{name}", max(args.sizes), args.env_steps)
+        return
     clock = time.process_time if args.cpu_time else time.perf_counter
     print(
         f"{'env id':<24} {'B':>3} {'steps':>6} {'lockstep µs':>12} {'single µs':>10} {'ratio':>6}"

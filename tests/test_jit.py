@@ -18,7 +18,8 @@ def _source_function(src: str, name: str):
 def test_compiled_twin_calls_compiled_helpers_and_leaves_python_alone():
     if not _jit.enabled():
         pytest.skip("numba not available")
-    twice = _source_function("def twice(x):\n    return 2.0 * x\n", "twice")
+    # the helper reads TWO, a global of its own module that the kernel's module lacks
+    twice = _source_function("TWO = 2.0\ndef twice(x):\n    return TWO * x\n", "twice")
     outer = _source_function("def outer(xs):\n    return twice(xs[0]) + 1.0\n", "outer")
     outer.__globals__["twice"] = twice
     fast = _jit.compiled(outer, {"twice": twice})

@@ -50,14 +50,18 @@ def compiled(
 
     ``helpers``: the functions ``func`` (and the helpers themselves) call, by the global
     name they call them by.  Compiled code can only call compiled code, so the twin and
-    its compiled helpers are bound to a private copy of ``func``'s module namespace; the
-    Python function and helpers stay as they are.
+    its compiled helpers are bound to a private namespace: the helpers' module globals
+    under ``func``'s (so a helper from another module finds its constants); the Python
+    function and helpers stay as they are.
     """
     if func not in _CACHE:
         if enabled():
             import numba
 
-            glb = dict(func.__globals__)
+            glb: dict[str, Any] = {}
+            for helper in (helpers or {}).values():
+                glb.update(helper.__globals__)
+            glb.update(func.__globals__)
             for name, helper in (helpers or {}).items():
                 glb[name] = _njit(numba, _rebind(helper, glb))
             _CACHE[func] = _njit(numba, _rebind(func, glb))
