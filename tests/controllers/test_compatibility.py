@@ -106,7 +106,10 @@ def test_scenario_defaults_leave_the_own_paper_scenarios_alone():
     # paper 001 is pid's own scenario (and distance-indexed)
     assert scenario_defaults("pid", get_scenario("paper001_stopping")) == {}
     assert scenario_defaults("fuzzy_pid", yz) == {"integrate_saturated": True}
-    assert scenario_defaults("fuzzy_pid", get_scenario("paper004_urban")) == {}
+    # paper 004's comparator: the sane default in the library, the paper's in its env
+    assert scenario_defaults("fuzzy_pid", get_scenario("paper004_urban")) == {
+        "integrate_saturated": True
+    }
     # cruise runs have no stop to make the position lag up for
     assert scenario_defaults("pid", get_scenario("paper003_cruise")) == {}
     assert scenario_defaults("mpc", yz) == {}
@@ -144,6 +147,19 @@ def test_speed_trackers_refuse_time_indexed_stops_outside_their_paper():
     assert unsupported_reason("tracking", get_scenario("paper000_single_section")) is not None
 
 
+def test_paper004_env_keeps_the_comparator_as_reproduced():
+    import gymnasium as gym
+
+    import train_envs.envs  # noqa: F401 - registers the envs
+
+    env = gym.make("TrainEnvs/Urban004FuzzyPID-v0")
+    try:
+        assert env.unwrapped.controller.integrate_saturated is False
+    finally:
+        env.close()
+    assert make_controller("fuzzy_pid", get_scenario("paper004_urban")).integrate_saturated
+
+
 def test_requirements_validate_their_fields():
     with pytest.raises(ValueError, match="cars"):
         Requirements("x", cars="two")
@@ -162,10 +178,7 @@ def _acceptance_pairs():
         sc = benchmark_scenario(s)
         for c in CONTROLLERS:
             if unsupported_reason(c, sc) is None:
-                marks = ()
-                if (c, s) == ("fuzzy_pid", "paper004_urban"):
-                    marks = pytest.mark.xfail(strict=True, reason="paper 004's comparator")
-                out.append(pytest.param(c, s, marks=marks, id=f"{c}@{s}"))
+                out.append(pytest.param(c, s, id=f"{c}@{s}"))
     return out
 
 

@@ -190,7 +190,6 @@ REQUIREMENTS: dict[str, Requirements] = {
     "fuzzy_pid": Requirements(
         "PID with fuzzy online correction of its gains (paper 004's comparator)",
         line=_SINGLE_POINT,
-        own_scenarios=P004,
     ),
     "afsmc": Requirements(
         "adaptive fuzzy sliding-mode control on speed and position error",
