@@ -156,10 +156,11 @@ def tuned_params(
     """:func:`tune_pair` for every supported pair (on ``executor`` if given) under the
     benchmark disturbance (:func:`~train_envs.benchmark.resolve_disturbance`, default
     ``load``)."""
-    from train_envs.benchmark import pair_reasons
+    from train_envs.benchmark import pair_reasons, resolve_disturbance
 
+    disturbance = resolve_disturbance(disturbance)
     if unsupported is None:
-        unsupported = pair_reasons(scenarios, controllers)
+        unsupported = pair_reasons(scenarios, controllers, disturbance)
     pairs = [(s, c) for s in scenarios for c in controllers if (s, c) not in unsupported]
     out = str(out)
     results: dict[tuple[str, str], dict[str, float] | str] = {}
@@ -276,7 +277,7 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
                 out,
                 budget,
                 executor=executor,
-                unsupported=pair_reasons(scenarios, controllers),
+                unsupported=pair_reasons(scenarios, controllers, disturbance),
                 progress=not args.no_progress,
                 disturbance=disturbance,
             )

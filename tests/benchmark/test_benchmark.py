@@ -149,6 +149,14 @@ def test_disturbance_merges_over_the_scenario_own():
     assert text == resolve_disturbance({"mass_factor_range": (1, 1.1), "random_bound_mps2": 0.01})
 
 
+def test_pairs_are_checked_under_the_benchmark_disturbance():
+    from train_envs.benchmark import pair_reasons
+
+    sec, wind = ["paper000_single_section"], resolve_disturbance('{"wind": "constant"}')
+    assert pair_reasons(sec, ["fuzzy_mpc"]) == {}
+    assert "persistent disturbance" in pair_reasons(sec, ["fuzzy_mpc"], wind)[sec[0], "fuzzy_mpc"]
+
+
 @pytest.mark.parametrize(
     "spec,needle",
     [

@@ -147,6 +147,16 @@ def test_speed_trackers_refuse_time_indexed_stops_outside_their_paper():
     assert unsupported_reason("tracking", get_scenario("paper000_single_section")) is not None
 
 
+def test_no_offset_free_action_refuses_a_persistent_wind():
+    """fuzzy_mpc under paper 000's 0.2 m/s² headwind holds 18.5 m/s for v_ref 21.1 m/s
+    (measured; command far below the traction limit) and stops 403 m short."""
+    for s in ("paper000_disturbance_constant", "paper000_disturbance_harmonic"):
+        reason = unsupported_reason("fuzzy_mpc", get_scenario(s))
+        assert "persistent disturbance" in reason and "wind" in reason
+    assert unsupported_reason("fuzzy_mpc", get_scenario("paper000_single_section")) is None
+    assert "no persistent disturbance" in requirements("fuzzy_mpc").summary()
+
+
 def test_paper004_env_keeps_the_comparator_as_reproduced():
     import gymnasium as gym
 

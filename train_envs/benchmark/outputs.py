@@ -91,7 +91,7 @@ def run_benchmark(
     if not seeds:
         raise ValueError("seeds: need at least one seed")
     dist = resolve_disturbance(disturbance)
-    unsupported = pair_reasons(scs, ctrls)
+    unsupported = pair_reasons(scs, ctrls, dist)
     cells = plan_cells(out, scs, ctrls, seeds, params, unsupported, dist)
     table, n_run = run_cells(
         cells, out, executor=executor, progress=progress, retry_failed=retry_failed

@@ -61,6 +61,10 @@ class Requirements:
         max_actuator_order: highest actuator order its model accounts for (0: forces
             act at once, 1: first-order lag, 2: second-order actuator).
         dead_time: whether it accepts an actuator dead time.
+        persistent_disturbance: whether it accepts a scenario with a persistent force
+            (``disturbance.wind``): ``False`` for a method without integral action or
+            disturbance estimate, whose steady speed error under a constant force
+            integrates into a position lag growing with the run.
         line: what it reads of the line (informative: every scenario carries a track).
         why: the reason behind the narrowest requirement, quoted in refusals.
         own_scenarios: the scenarios of the controller's own paper, whose reproduction
@@ -74,6 +78,7 @@ class Requirements:
     stop_references: tuple[str, ...] = REFERENCE_MODES
     max_actuator_order: int = 2
     dead_time: bool = True
+    persistent_disturbance: bool = True
     line: str = "gradient and speed limits"
     why: str = ""
     own_scenarios: tuple[str, ...] = ()
@@ -99,6 +104,8 @@ class Requirements:
         inputs = "/".join("per-car" if i == "per_car" else "lumped" for i in self.inputs)
         act = ("no lag", "lag <= 1st order", "lag <= 2nd order")[self.max_actuator_order]
         dead = "dead time ok" if self.dead_time else "no dead time"
+        if not self.persistent_disturbance:
+            dead += ", no persistent disturbance"
         tasks = "/".join(self.tasks)
         if "stopping" in self.tasks and self.stop_references != REFERENCE_MODES:
             tasks += f" (stops on {'/'.join(self.stop_references)}-indexed references)"
@@ -142,6 +149,13 @@ class Requirements:
             return (
                 f"needs an actuator without dead time, got "
                 f"{float(scenario.actuator.dead_time_s):g} s{why}"
+            )
+        wind = scenario.disturbance.wind
+        if not self.persistent_disturbance and wind is not None:
+            return (
+                f"needs a scenario without a persistent disturbance, got {wind} wind "
+                "(no integral action or disturbance estimate: a constant force leaves a "
+                "steady speed error, and the position lag grows with the run)"
             )
         return None
 
@@ -230,6 +244,7 @@ REQUIREMENTS: dict[str, Requirements] = {
         dead_time=False,
         line="gradient and speed limits",
         why="its T-S fuzzy model has one force and one speed per car",
+        persistent_disturbance=False,
         own_scenarios=P003,
     ),
     "rmpc": Requirements(
