@@ -7,15 +7,20 @@ Usage::
     train-envs benchmark --seeds 0-4 --out results/benchmark            # every pair
     train-envs benchmark --scenarios real-lines --seeds 0-4 --out DIR   # station pairs
     train-envs benchmark --tuned --seeds 0-4 --out results/benchmark-tuned
+    train-envs benchmark --disturbance none --seeds 0 --out DIR        # undisturbed runs
 
-Default parameters: :func:`train_envs.benchmark.run_benchmark`. With ``--tuned`` each
-supported pair's controller parameters are first tuned by MOWOA on training seeds of
-its scenario (:func:`tune_pair`; :data:`BUDGETS`, ``small`` by default, ``full`` with
-``--full-budget``), each tuning run an Optuna study in ``<out>/studies/`` (one SQLite
-file per pair, so pairs tune in parallel), reused on a re-run (resumed, answered from
-its stored evaluations); the benchmark then evaluates the selected parameters on the
-benchmark seeds. A pair whose tuning fails, or finds no point that keeps the speed
-limit on every training seed, is a failed row with that reason.
+Default parameters: :func:`train_envs.benchmark.run_benchmark`. ``--disturbance``: what
+the seeds draw over each scenario's own disturbance (a preset, ``load`` by default or
+``none``, or a JSON object of ``DisturbanceSpec`` fields;
+:mod:`train_envs.benchmark.disturbance`). With ``--tuned`` each supported pair's
+controller parameters are first tuned by MOWOA on training seeds of its scenario under
+the same disturbance, so tuning and evaluation see one distribution (:func:`tune_pair`;
+:data:`BUDGETS`, ``small`` by default, ``full`` with ``--full-budget``), each tuning run
+an Optuna study in ``<out>/studies/`` (one SQLite file per pair, so pairs tune in
+parallel), reused on a re-run (resumed, answered from its stored evaluations); the
+benchmark then evaluates the selected parameters on the benchmark seeds. A pair whose
+tuning fails, or finds no point that keeps the speed limit on every training seed, is a
+failed row with that reason.
 
 Inputs are checked before any run; errors are one line, exit code 2
 (:func:`train_envs.cli.main`). ``add_benchmark_parser(subparsers)`` adds the
@@ -25,6 +30,7 @@ subcommand; :func:`tuners.cli.add_tune_parser` calls it.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -65,21 +71,26 @@ BUDGETS: dict[str, Budget] = {
 }
 
 
-def env_config(scenario: str) -> dict[str, Any]:
+def env_config(scenario: str, disturbance: str | None = None) -> dict[str, Any]:
     """The env config of a benchmark scenario (without the controller): a named
-    scenario, or real-line mode on one station pair ``<line>_<i>_<j>``."""
-    from train_envs.benchmark import benchmark_scenario
+    scenario, or real-line mode on one station pair ``<line>_<i>_<j>``; with the
+    benchmark disturbance (:func:`~train_envs.benchmark.resolve_disturbance`, default
+    ``load``) over the scenario's own."""
+    from train_envs.benchmark import benchmark_scenario, resolve_disturbance
     from train_envs.scenarios import list_scenarios
 
+    dist = json.loads(resolve_disturbance(disturbance))
+    extra = {"disturbance": dist} if dist else {}
     if scenario in list_scenarios():
-        return {"scenario": scenario}
+        return {"scenario": scenario, **extra}
     sc = benchmark_scenario(scenario)
     return {
+        **extra,
         "real_line": {
             "track": sc.extra["line"],
             "train": sc.train.name,
             "sections": [[int(sc.extra["from_stop"]), int(sc.extra["to_stop"])]],
-        }
+        },
     }
 
 
@@ -89,13 +100,22 @@ def _error_line(exc: BaseException) -> str:
     return error_line(exc).removeprefix("error: ")
 
 
-def tune_pair(scenario: str, controller: str, out: str, budget: Budget) -> dict[str, float] | str:
-    """Tune one pair (or reuse its stored study); the selected parameters, or the reason
-    (a string) why there are none. The study is ``<scenario>-<controller>-<budget>-<code>``
-    in ``<out>/studies/<scenario>--<controller>.db`` (a new code version tunes anew)."""
+def tune_pair(
+    scenario: str, controller: str, out: str, budget: Budget, disturbance: str | None = None
+) -> dict[str, float] | str:
+    """Tune one pair (or reuse its stored study) under the benchmark disturbance
+    (:func:`~train_envs.benchmark.resolve_disturbance`, default ``load``); the selected
+    parameters, or the reason (a string) why there are none. The study is
+    ``<scenario>-<controller>-<budget>-d<hash>-<code>`` (hash of the disturbance) in
+    ``<out>/studies/<scenario>--<controller>.db`` (a new code version or another
+    disturbance tunes anew)."""
     import optuna
 
+    from train_envs.benchmark import resolve_disturbance
+    from train_envs.benchmark.run import params_hash
     from tuners.run import tune
+
+    disturbance = resolve_disturbance(disturbance)
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     folder = Path(out) / "studies"
@@ -108,10 +128,10 @@ def tune_pair(scenario: str, controller: str, out: str, budget: Budget) -> dict[
             budget.iters,
             backend="serial",
             storage=f"sqlite:///{folder / f'{scenario}--{controller}.db'}",
-            study=f"{scenario}-{controller}-{budget.name}-{{code}}",
+            study=f"{scenario}-{controller}-{budget.name}-d{params_hash(disturbance)[:6]}-{{code}}",
             resume="auto",
             seeds=budget.train_seeds,
-            config={**env_config(scenario), "controller": controller},
+            config={**env_config(scenario, disturbance), "controller": controller},
             progress=False,
         )
     except Exception as exc:  # noqa: BLE001 - the pair's row says why
@@ -131,18 +151,29 @@ def tuned_params(
     executor: Any = None,
     unsupported: Mapping[tuple[str, str], str] | None = None,
     progress: bool = True,
+    disturbance: str | None = None,
 ) -> dict[tuple[str, str], dict[str, float] | str]:
-    """:func:`tune_pair` for every supported pair (on ``executor`` if given)."""
-    from train_envs.benchmark import pair_reasons
+    """:func:`tune_pair` for every supported pair (on ``executor`` if given) under the
+    benchmark disturbance (:func:`~train_envs.benchmark.resolve_disturbance`, default
+    ``load``)."""
+    from train_envs.benchmark import pair_reasons, resolve_disturbance
 
+    disturbance = resolve_disturbance(disturbance)
     if unsupported is None:
-        unsupported = pair_reasons(scenarios, controllers)
+        unsupported = pair_reasons(scenarios, controllers, disturbance)
     pairs = [(s, c) for s in scenarios for c in controllers if (s, c) not in unsupported]
     out = str(out)
     results: dict[tuple[str, str], dict[str, float] | str] = {}
     run = map if executor is None else executor.map
     n = len(pairs)
-    outcomes = run(tune_pair, [s for s, _ in pairs], [c for _, c in pairs], [out] * n, [budget] * n)
+    outcomes = run(
+        tune_pair,
+        [s for s, _ in pairs],
+        [c for _, c in pairs],
+        [out] * n,
+        [budget] * n,
+        [disturbance] * n,
+    )
     for k, ((s, c), res) in enumerate(zip(pairs, outcomes, strict=True)):
         results[s, c] = res
         if progress:
@@ -189,6 +220,13 @@ def add_benchmark_parser(subparsers: argparse._SubParsersAction) -> argparse.Arg
         "--seeds", nargs="+", default=None, help="disturbance seeds: 0 1 2, 0-4 (default 0)"
     )
     p.add_argument(
+        "--disturbance",
+        default=None,
+        help="what the seeds draw over each scenario's own disturbance: load (default: "
+        "mass x U(0.9, 1.15), resistance disturbance +-0.03 m/s^2), none, or a JSON object "
+        "of DisturbanceSpec fields",
+    )
+    p.add_argument(
         "--tuned",
         action="store_true",
         help="tune each pair by MOWOA on training seeds first (studies in --out/studies)",
@@ -211,7 +249,12 @@ def add_benchmark_parser(subparsers: argparse._SubParsersAction) -> argparse.Arg
 
 
 def cmd_benchmark(args: argparse.Namespace) -> int:
-    from train_envs.benchmark import pair_reasons, resolve_controllers, resolve_scenarios
+    from train_envs.benchmark import (
+        pair_reasons,
+        resolve_controllers,
+        resolve_disturbance,
+        resolve_scenarios,
+    )
     from train_envs.benchmark.outputs import run_benchmark
 
     if args.workers < 1:
@@ -221,6 +264,7 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     seeds = parse_seeds(args.seeds) or [0]
     scenarios = resolve_scenarios(args.scenarios)
     controllers = resolve_controllers(args.controllers)
+    disturbance = resolve_disturbance(args.disturbance)
     out = writable_folder(args.out)
     executor = _executor(args.workers)
     try:
@@ -233,14 +277,16 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
                 out,
                 budget,
                 executor=executor,
-                unsupported=pair_reasons(scenarios, controllers),
+                unsupported=pair_reasons(scenarios, controllers, disturbance),
                 progress=not args.no_progress,
+                disturbance=disturbance,
             )
         res = run_benchmark(
             out,
             scenarios,
             controllers,
             seeds,
+            disturbance=disturbance,
             params=params,
             executor=executor,
             progress=not args.no_progress,

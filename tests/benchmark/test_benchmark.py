@@ -1,5 +1,6 @@
 """The benchmark: a CI-sized matrix, the leaderboard's statistics, resume, failures,
-unsupported rows, the real-line set and the ``train-envs benchmark`` command."""
+unsupported rows, the disturbance the seeds draw, the real-line set and the
+``train-envs benchmark`` command."""
 
 from __future__ import annotations
 
@@ -12,9 +13,12 @@ from scipy import stats
 
 from train_envs import cli
 from train_envs.benchmark import (
+    DISTURBANCES,
+    apply_disturbance,
     benchmark_scenario,
     leaderboard,
     real_line_pairs,
+    resolve_disturbance,
     resolve_scenarios,
     run_benchmark,
 )
@@ -25,6 +29,7 @@ from train_envs.scenarios import get_scenario
 from train_envs.simulation import simulate
 
 STOP = "paper001_stopping"
+LOAD = resolve_disturbance("load")
 
 
 @pytest.fixture(scope="module")
@@ -46,10 +51,15 @@ def test_tidy_table_holds_every_cell_and_metric(small):
     for col in ("scenario", "controller", "parameters", "seed", "E_p_m", "ITAE_m_s",
                 "safety_cost", "atp_interventions", "overrun_m", "max_overspeed_mps"):  # fmt: skip
         assert col in t, col
-    # a cell is the runner's episode: the same metrics as simulate()
-    ref = simulate(STOP, "pid", seed=1).metrics
+    assert (t["disturbance"] == LOAD).all()
+    # a cell is the runner's episode on the disturbed scenario: the same metrics as simulate()
+    ref = simulate(apply_disturbance(get_scenario(STOP), LOAD), "pid", seed=1).metrics
     row = t[(t["controller"] == "pid") & (t["seed"] == 1)].iloc[0]
     assert row["E_p_m"] == ref["E_p_m"] and row["safety_cost"] == ref["safety_cost"]
+    # the seeds draw the disturbance: two seeds of one pair are two episodes
+    for c in ("pid", "dmc"):
+        a, b = t[t["controller"] == c]["energy_kWh"]
+        assert a != b, c
 
 
 def test_leaderboard_one_row_per_pair_with_t_interval(small):
@@ -64,7 +74,8 @@ def test_leaderboard_one_row_per_pair_with_t_interval(small):
     half = stats.t.ppf(0.975, len(x) - 1) * np.std(x, ddof=1) / np.sqrt(len(x))
     assert b.loc["dmc", "E_v_mps"] == pytest.approx(x.mean(), rel=1e-12)
     assert b.loc["dmc", "E_v_mps_ci95"] == pytest.approx(half, rel=1e-9)
-    assert b.loc["dmc", "n_seeds"] == 2
+    assert b.loc["dmc", "n_seeds"] == 2 and b.loc["dmc", "E_v_mps_ci95"] > 0
+    assert b.loc["dmc", "disturbance"] == "load"
     # ranked by the stop error on a stopping run
     ranked = res.board.dropna(subset=["rank"]).sort_values("rank")
     assert ranked["E_p_m"].is_monotonic_increasing
@@ -111,6 +122,55 @@ def test_failing_cell_is_recorded_and_the_others_run(tmp_path):
     rec = [json.loads(x) for x in (tmp_path / CELLS_FILE).read_text().splitlines()]
     assert [r["status"] for r in rec] == ["failed", "failed", "ok"]
     assert json.loads(rec[0]["parameters"]) == {"nope": 1.0}
+
+
+def test_no_disturbance_reproduces_the_named_scenario_in_its_own_cells(small, tmp_path):
+    out, _ = small
+    (tmp_path / CELLS_FILE).write_text((out / CELLS_FILE).read_text())
+    res = run_benchmark(
+        tmp_path, [STOP], ["pid"], [0, 1], disturbance="none", progress=False, figures=False
+    )
+    assert res.cells_run == 2  # the load cells in the folder are not taken for these
+    t = res.table
+    assert (t["disturbance"] == "{}").all() and res.board.iloc[0]["disturbance"] == "none"
+    ref = simulate(STOP, "pid", seed=0).metrics
+    assert t.iloc[0]["E_p_m"] == ref["E_p_m"] and t.iloc[0]["energy_kWh"] == ref["energy_kWh"]
+    assert t.iloc[0]["energy_kWh"] == t.iloc[1]["energy_kWh"]  # deterministic scenario
+
+
+def test_disturbance_merges_over_the_scenario_own():
+    wind = get_scenario("paper000_disturbance_constant")
+    sc = apply_disturbance(wind, LOAD)
+    assert sc.disturbance.wind == "constant" and sc.disturbance.w0_mps2 == wind.disturbance.w0_mps2
+    assert sc.disturbance.mass_factor_range == tuple(DISTURBANCES["load"]["mass_factor_range"])
+    assert sc.disturbance.random_bound_mps2 == 0.03
+    assert apply_disturbance(wind, resolve_disturbance("none")) is wind
+    text = resolve_disturbance('{"random_bound_mps2": 0.01, "mass_factor_range": [1, 1.1]}')
+    assert text == resolve_disturbance({"mass_factor_range": (1, 1.1), "random_bound_mps2": 0.01})
+
+
+def test_pairs_are_checked_under_the_benchmark_disturbance():
+    from train_envs.benchmark import pair_reasons
+
+    sec, wind = ["paper000_single_section"], resolve_disturbance('{"wind": "constant"}')
+    assert pair_reasons(sec, ["fuzzy_mpc"]) == {}
+    assert "persistent disturbance" in pair_reasons(sec, ["fuzzy_mpc"], wind)[sec[0], "fuzzy_mpc"]
+
+
+@pytest.mark.parametrize(
+    "spec,needle",
+    [
+        ("heavy", "preset (load, none)"),
+        ('{"mass_factor": [1, 2]}', "unknown field(s) mass_factor"),
+        ('{"random_bound_mps2": 5}', "disturbance.random_bound_mps2"),
+        ('{"mass_factor_range": [1.2, 1.0]}', "disturbance.mass_factor_range[1]"),
+        ("{nope", "not a JSON object"),
+    ],
+)
+def test_bad_disturbance_is_one_line(spec, needle):
+    with pytest.raises(ValueError, match="disturbance") as exc:
+        resolve_disturbance(spec)
+    assert needle in str(exc.value) and "\n" not in str(exc.value)
 
 
 def test_mean_ci95_edge_cases():
@@ -178,6 +238,8 @@ def test_cli_line_writes_one_row_per_pair(tmp_path, capsys):
         (["--seeds", "5-1"], "--seeds"),
         (["--full-budget"], "--full-budget goes with --tuned"),
         (["--workers", "0"], "--workers"),
+        (["--disturbance", '{"wind": "gale"}'], "disturbance.wind"),
+        (["--disturbance", "heavy"], "disturbance must be a preset"),
     ],
 )
 def test_cli_errors_are_one_line(tmp_path, capsys, extra, needle):
@@ -196,6 +258,7 @@ def test_publish_replaces_the_block(small, tmp_path):
     publish("default", out, doc)
     text = doc.read_text()
     assert text.startswith("intro\n") and text.endswith("end\n") and "\nold\n" not in text
-    assert "3 pairs (2 ok, 1 unsupported); default parameters; seeds [0, 1]; 4 runs" in text
+    summary = "3 pairs (2 ok, 1 unsupported); default parameters; disturbance load; seeds [0, 1]"
+    assert summary in text
     with pytest.raises(ValueError, match="no block"):
         publish("tuned", out, doc)

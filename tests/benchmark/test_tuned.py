@@ -9,7 +9,12 @@ import gymnasium as gym
 import optuna
 import pytest
 
-from train_envs.benchmark import benchmark_scenario, run_benchmark
+from train_envs.benchmark import (
+    apply_disturbance,
+    benchmark_scenario,
+    resolve_disturbance,
+    run_benchmark,
+)
 from tuners.benchmark import BASE_ENV, BUDGETS, Budget, env_config, tuned_params
 
 STOP = "paper001_stopping"
@@ -42,9 +47,11 @@ def test_budgets():
     assert not set(small.train_seeds) & set(range(5))  # disjoint from benchmark seeds 0-4
 
 
-@pytest.mark.parametrize("name", ["zurich_1_2", "paper004_urban"])
+@pytest.mark.parametrize("name", ["zurich_1_2", "paper004_urban", "paper000_disturbance_harmonic"])
 def test_env_config_gives_the_benchmark_scenario(name):
-    env = gym.make(BASE_ENV, config={**env_config(name), "controller": "pid"})
+    """The tuning env runs the scenario the benchmark evaluates, its disturbance included."""
+    load = resolve_disturbance("load")
+    env = gym.make(BASE_ENV, config={**env_config(name, load), "controller": "pid"})
     try:
         sc = env.unwrapped.scenario
     finally:
@@ -56,3 +63,5 @@ def test_env_config_gives_the_benchmark_scenario(name):
         ref.t_max_s,
     )
     assert sc.track.length_m == ref.track.length_m and sc.train.name == ref.train.name
+    assert sc.disturbance == apply_disturbance(ref, load).disturbance != ref.disturbance
+    assert "disturbance" not in env_config(name, resolve_disturbance("none"))

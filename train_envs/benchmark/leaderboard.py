@@ -5,7 +5,8 @@ seeds and the half-width of the 95 % confidence interval of that mean, Student's
 interval ``mean ± t_{0.975, n−1} · s / √n`` (:func:`scipy.stats.t.interval`; NaN for
 one seed, 0 when every seed gives the same value). ``status``: ``ok`` (every seed
 ran), ``partial`` (some failed: the statistics are over those that ran), ``failed``,
-or ``unsupported`` with ``note`` = ``"unsupported: <reason>"``. Within a scenario the
+or ``unsupported`` with ``note`` = ``"unsupported: <reason>"``; ``disturbance``: the
+benchmark disturbance of its runs (preset name or JSON). Within a scenario the
 pairs are ranked (``rank``, 1 = best) by the scenario's primary metric: the stop error
 ``E_p_m`` on stopping runs, the mean speed error ``E_v_mps`` on cruise runs.
 """
@@ -19,6 +20,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from train_envs.benchmark.disturbance import disturbance_label
 from train_envs.labels import format_number
 
 __all__ = ["HEADLINE", "leaderboard", "leaderboard_markdown", "mean_ci95", "primary_metric"]
@@ -94,13 +96,15 @@ def leaderboard(
             note="" if not len(errors) else f"failed ({len(errors)}/{len(g)}): {errors.iloc[0]}",
             parameters=g["parameters"].iloc[0],
         )
+        if "disturbance" in g:
+            row["disturbance"] = disturbance_label(str(g["disturbance"].iloc[0]))
         for m in HEADLINE:
             if m in ok and ok[m].notna().any():
                 row[m], row[f"{m}_ci95"] = mean_ci95(ok[m].tolist())
         rows.append(row)
     board = pd.DataFrame(rows)
     stat_cols = [c for m in HEADLINE for c in (m, f"{m}_ci95") if c in board]
-    fixed = ["scenario", "controller", "status", "n_seeds", "note", "parameters"]
+    fixed = ["scenario", "controller", "status", "n_seeds", "note", "parameters", "disturbance"]
     board = board[[c for c in fixed if c in board] + stat_cols]
     board["rank"] = np.nan
     for _, g in board.groupby("scenario", sort=False):

@@ -20,6 +20,7 @@ import re
 from collections.abc import Callable, Sequence
 from functools import cache
 
+from train_envs.benchmark.disturbance import apply_disturbance
 from train_envs.controllers import list_controllers
 from train_envs.controllers.requirements import unsupported_reason
 from train_envs.lines import get_track
@@ -100,13 +101,15 @@ def resolve_controllers(names: Sequence[str] | None) -> list[str]:
 
 
 def pair_reasons(
-    scenarios: Sequence[str], controllers: Sequence[str]
+    scenarios: Sequence[str], controllers: Sequence[str], disturbance: str = "{}"
 ) -> dict[tuple[str, str], str]:
-    """``(scenario, controller) -> reason`` of every unsupported pair."""
+    """``(scenario, controller) -> reason`` of every unsupported pair, the scenarios
+    under the benchmark ``disturbance`` (canonical JSON)."""
     out = {}
     for sc in scenarios:
+        scenario = apply_disturbance(benchmark_scenario(sc), disturbance)
         for c in controllers:
-            reason = unsupported_reason(c, benchmark_scenario(sc))
+            reason = unsupported_reason(c, scenario)
             if reason is not None:
                 out[sc, c] = reason
     return out

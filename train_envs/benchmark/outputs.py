@@ -1,11 +1,12 @@
 """The benchmark in one call: run the matrix and write its files.
 
 :func:`run_benchmark` resolves the scenarios and controllers, finds the unsupported
-pairs, runs the cells not yet stored in ``out`` (:mod:`train_envs.benchmark.run`) and
-writes :func:`write_outputs`' files:
+pairs, runs the cells not yet stored in ``out`` under the benchmark disturbance
+(:mod:`train_envs.benchmark.disturbance`, ``load`` by default) through
+:mod:`train_envs.benchmark.run` and writes :func:`write_outputs`' files:
 
 * ``results.csv`` — the tidy table, one row per cell (scenario, controller, parameters,
-  seed, status, every metric incl. the safety costs);
+  disturbance, seed, status, every metric incl. the safety costs);
 * ``leaderboard.csv`` and ``leaderboard.md`` — one row per pair (mean ± 95 % CI of
   the headline metrics, or ``unsupported: reason``);
 * ``heatmap.png`` — controllers × scenarios, one headline metric per panel;
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from train_envs.benchmark.disturbance import resolve_disturbance
 from train_envs.benchmark.leaderboard import leaderboard, leaderboard_markdown
 from train_envs.benchmark.matrix import (
     benchmark_scenario,
@@ -37,7 +39,8 @@ __all__ = ["BenchmarkResult", "run_benchmark", "write_outputs"]
 @dataclass
 class BenchmarkResult:
     """A benchmark's tables: ``table`` (tidy, one row per cell), ``board`` (one row per
-    pair); ``cells_run``: cells run by this call (the rest came from ``out``)."""
+    pair); ``cells_run``: cells run by this call (the rest came from ``out``);
+    ``disturbance``: the canonical JSON of the benchmark disturbance."""
 
     out: Path
     scenarios: list[str]
@@ -48,6 +51,7 @@ class BenchmarkResult:
     cells_run: int
     unsupported: dict[tuple[str, str], str] = field(default_factory=dict)
     files: list[Path] = field(default_factory=list)
+    disturbance: str = "{}"
 
 
 def run_benchmark(
@@ -56,6 +60,7 @@ def run_benchmark(
     controllers: Sequence[str] | None = None,
     seeds: Sequence[int] = (0,),
     *,
+    disturbance: str | Mapping[str, object] | None = None,
     params: Mapping[tuple[str, str], Mapping[str, float] | str] | None = None,
     executor: Executor | None = None,
     progress: bool = True,
@@ -69,6 +74,9 @@ def run_benchmark(
         scenarios: names or sets (default ``all``, see :mod:`train_envs.benchmark.matrix`).
         controllers: names (default: every controller).
         seeds: disturbance seeds, one episode each.
+        disturbance: the benchmark disturbance the seeds draw, over each scenario's own:
+            a preset (``load``, the default; ``none``), a JSON object text or a mapping
+            of ``DisturbanceSpec`` fields (:mod:`train_envs.benchmark.disturbance`).
         params: (scenario, controller) -> parameters to run instead of the defaults,
             or a string: the pair's known error (e.g. its tuning failed).
         executor: where the cells run (default: this process, one after the other).
@@ -82,14 +90,16 @@ def run_benchmark(
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("seeds: need at least one seed")
-    unsupported = pair_reasons(scs, ctrls)
-    cells = plan_cells(out, scs, ctrls, seeds, params, unsupported)
+    dist = resolve_disturbance(disturbance)
+    unsupported = pair_reasons(scs, ctrls, dist)
+    cells = plan_cells(out, scs, ctrls, seeds, params, unsupported, dist)
     table, n_run = run_cells(
         cells, out, executor=executor, progress=progress, retry_failed=retry_failed
     )
     pairs = [(sc, c) for sc in scs for c in ctrls]
+    board = leaderboard(table, unsupported, pairs)
     res = BenchmarkResult(
-        out, scs, ctrls, seeds, table, leaderboard(table, unsupported, pairs), n_run, unsupported
+        out, scs, ctrls, seeds, table, board, n_run, unsupported, disturbance=dist
     )
     res.files = write_outputs(res, params=params, figures=figures)
     return res
@@ -117,7 +127,8 @@ def write_outputs(
         runs = {}
         for c in res.controllers:
             p = (params or {}).get((sc, c))
-            path = trajectory_path(out, sc, c, params_json(None if isinstance(p, str) else p))
+            text = params_json(None if isinstance(p, str) else p)
+            path = trajectory_path(out, sc, c, text, res.disturbance)
             if (sc, c) not in res.unsupported and path.exists():
                 runs[c] = pd.read_csv(path)
         if runs:

@@ -7,8 +7,8 @@ Usage (the published tables of ``docs/benchmark.md``)::
 
 reads ``<folder>/leaderboard.csv`` and ``results.csv`` and replaces the text between
 ``<!-- leaderboard:<name> -->`` and ``<!-- /leaderboard:<name> -->`` in the document
-with a one-line summary (pairs by status, parameters, seeds, runs) and the leaderboard's
-tables (:func:`train_envs.benchmark.leaderboard_markdown`).
+with a one-line summary (pairs by status, parameters, disturbance, seeds, runs) and the
+leaderboard's tables (:func:`train_envs.benchmark.leaderboard_markdown`).
 """
 
 from __future__ import annotations
@@ -34,9 +34,11 @@ def summary_markdown(folder: str | Path) -> str:
     seeds = sorted({int(s) for s in table["seed"]}) if len(table) else []
     counts = board["status"].value_counts().to_dict()
     tuned = board["parameters"].dropna().map(json.loads).map(bool).any()
+    dists = sorted(board["disturbance"].dropna().unique()) if "disturbance" in board else []
+    dist = f"disturbance {', '.join(map(str, dists))}; " if dists else ""
     head = (
         f"{len(board)} pairs ({', '.join(f'{n} {k}' for k, n in counts.items())}); "
-        f"{'tuned' if tuned else 'default'} parameters; seeds {seeds}; "
+        f"{'tuned' if tuned else 'default'} parameters; {dist}seeds {seeds}; "
         f"{len(table)} runs. "
         "Each value: mean ± half-width of the 95 % t interval over the seeds."
     )

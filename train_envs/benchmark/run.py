@@ -1,21 +1,25 @@
 """Run the benchmark's cells through the runner, resumably: the tidy results table.
 
-A cell is one closed-loop episode: (scenario, controller, parameters, seed), run by
-:func:`train_envs.simulation.simulate` (ATP supervision on, as everywhere). Its record
-is one row of the tidy table: ``scenario``, ``controller``, ``parameters`` (JSON of the
-parameters set on the controller, ``{}`` = its defaults), ``params_hash``, ``seed``,
+A cell is one closed-loop episode: (scenario, controller, parameters, disturbance,
+seed), run by :func:`train_envs.simulation.simulate` (ATP supervision on, as
+everywhere) on the scenario with the benchmark disturbance over its own
+(:mod:`train_envs.benchmark.disturbance`; the seed draws it). Its record is one row of
+the tidy table: ``scenario``, ``controller``, ``parameters`` (JSON of the parameters
+set on the controller, ``{}`` = its defaults), ``params_hash``, ``disturbance`` (its
+canonical JSON), ``seed``,
 ``status`` (``ok``, ``failed`` or ``unsupported``), ``error``, ``wall_time_s``,
 ``cpu_time_s`` (this process's CPU time: the cost without the machine's other load) and
 every episode metric (:func:`train_envs.metrics.episode_metrics`: units in the names,
 the safety costs ``atp_interventions``, ``overrun_m``, ``safety_cost``, ...).
 
 Resumable: each finished cell is appended at once as one JSON line to
-``<out>/cells.jsonl``, keyed by (scenario, controller, params_hash, seed); a cell
+``<out>/cells.jsonl``, keyed by (scenario, controller, params_hash, disturbance,
+seed); a cell
 whose key is there is not run again (a failed one neither, unless ``retry_failed``).
 A run killed part-way keeps every finished cell (a torn last line is ignored). A cell
 that raises is recorded as failed with its one-line error; the others go on. The runs
-of the first seed are kept as ``<out>/runs/<scenario>/<controller>-<hash>.csv.gz`` for
-the overlays. One benchmark process writes a folder at a time.
+of the first seed are kept as ``<out>/runs/<scenario>/<controller>-<hashes>.csv.gz``
+for the overlays. One benchmark process writes a folder at a time.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from typing import Any
 
 import pandas as pd
 
+from train_envs.benchmark.disturbance import apply_disturbance
 from train_envs.benchmark.matrix import benchmark_scenario, pair_reasons
 from train_envs.controllers.requirements import UnsupportedScenarioError
 
@@ -54,6 +59,7 @@ ID_COLUMNS = (
     "controller",
     "parameters",
     "params_hash",
+    "disturbance",
     "seed",
     "status",
     "error",
@@ -76,7 +82,8 @@ def params_hash(text: str) -> str:
 class Cell:
     """One episode of the benchmark; ``parameters`` is a :func:`params_json` text;
     ``keep_run``: write its trajectory (``trajectory`` file path) for the overlays;
-    ``error``: a known failure recorded without running (e.g. a tuning that failed)."""
+    ``error``: a known failure recorded without running (e.g. a tuning that failed);
+    ``disturbance``: the canonical JSON of the benchmark disturbance (``{}``: none)."""
 
     scenario: str
     controller: str
@@ -84,15 +91,39 @@ class Cell:
     seed: int
     keep_run: str | None = None
     error: str | None = None
+    disturbance: str = "{}"
 
     @property
-    def key(self) -> tuple[str, str, str, int]:
-        return self.scenario, self.controller, params_hash(self.parameters), int(self.seed)
+    def key(self) -> CellKey:
+        return (
+            self.scenario,
+            self.controller,
+            params_hash(self.parameters),
+            self.disturbance,
+            int(self.seed),
+        )
 
 
-def trajectory_path(out: str | Path, scenario: str, controller: str, parameters: str) -> Path:
-    """Where the first seed's run of a (scenario, controller, parameters) is kept."""
-    return Path(out) / "runs" / scenario / f"{controller}-{params_hash(parameters)}.csv.gz"
+CellKey = tuple[str, str, str, str, int]
+
+
+def _record_key(rec: Mapping[str, Any]) -> CellKey:
+    return (
+        rec["scenario"],
+        rec["controller"],
+        rec["params_hash"],
+        rec.get("disturbance", "{}"),
+        int(rec["seed"]),
+    )
+
+
+def trajectory_path(
+    out: str | Path, scenario: str, controller: str, parameters: str, disturbance: str = "{}"
+) -> Path:
+    """Where the first seed's run of a (scenario, controller, parameters, disturbance)
+    is kept."""
+    name = f"{controller}-{params_hash(parameters)}-{params_hash(disturbance)[:6]}.csv.gz"
+    return Path(out) / "runs" / scenario / name
 
 
 def _error_line(exc: BaseException) -> str:
@@ -109,6 +140,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         "controller": cell.controller,
         "parameters": cell.parameters,
         "params_hash": params_hash(cell.parameters),
+        "disturbance": cell.disturbance,
         "seed": int(cell.seed),
         "status": "ok",
         "error": "",
@@ -124,7 +156,7 @@ def run_cell(cell: Cell) -> dict[str, Any]:
         }
     try:
         res = simulate(
-            benchmark_scenario(cell.scenario),
+            apply_disturbance(benchmark_scenario(cell.scenario), cell.disturbance),
             cell.controller,
             seed=cell.seed,
             params=json.loads(cell.parameters) or None,
@@ -149,15 +181,15 @@ class CellStore:
 
     def __init__(self, out: str | Path) -> None:
         self.path = Path(out) / CELLS_FILE
-        self.records: dict[tuple[str, str, str, int], dict[str, Any]] = {}
+        self.records: dict[CellKey, dict[str, Any]] = {}
         if self.path.exists():
             for line in self.path.read_text().splitlines():
                 try:
                     rec = json.loads(line)
                 except json.JSONDecodeError:  # a torn last line of a killed run
                     continue
-                key = (rec["scenario"], rec["controller"], rec["params_hash"], int(rec["seed"]))
-                self.records[key] = rec
+                rec.setdefault("disturbance", "{}")
+                self.records[_record_key(rec)] = rec
 
     def has(self, cell: Cell, retry_failed: bool = False) -> bool:
         rec = self.records.get(cell.key)
@@ -167,8 +199,7 @@ class CellStore:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with self.path.open("a") as f:
             f.write(json.dumps(rec) + "\n")
-        key = (rec["scenario"], rec["controller"], rec["params_hash"], int(rec["seed"]))
-        self.records[key] = rec
+        self.records[_record_key(rec)] = rec
 
     def table(self, cells: Sequence[Cell]) -> pd.DataFrame:
         """The tidy table of ``cells`` (those recorded), in their order."""
@@ -218,13 +249,15 @@ def plan_cells(
     seeds: Sequence[int],
     params: Mapping[tuple[str, str], Mapping[str, float] | str] | None = None,
     unsupported: Mapping[tuple[str, str], str] | None = None,
+    disturbance: str = "{}",
 ) -> list[Cell]:
     """Every cell of the matrix, pairs in scenario-major order, seeds within a pair.
 
     ``params``: (scenario, controller) -> parameters, or a string = the pair's known
     error (every seed is recorded failed with it); missing pairs run their defaults.
     ``unsupported`` (default: :func:`~train_envs.benchmark.matrix.pair_reasons`): the
-    pairs not run; they have no cells.
+    pairs not run; they have no cells. ``disturbance``: the canonical JSON of the
+    benchmark disturbance (:func:`~train_envs.benchmark.disturbance.resolve_disturbance`).
     """
     if unsupported is None:
         unsupported = pair_reasons(scenarios, controllers)
@@ -237,8 +270,8 @@ def plan_cells(
             error = p if isinstance(p, str) else None
             text = params_json(None if isinstance(p, str) else p)
             for k, seed in enumerate(seeds):
-                keep = str(trajectory_path(out, sc, c, text)) if k == 0 else None
-                cells.append(Cell(sc, c, text, int(seed), keep, error))
+                keep = str(trajectory_path(out, sc, c, text, disturbance)) if k == 0 else None
+                cells.append(Cell(sc, c, text, int(seed), keep, error, disturbance))
     return cells
 
 

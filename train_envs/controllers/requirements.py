@@ -3,8 +3,9 @@
 Every name in :data:`train_envs.controllers.CONTROLLERS` declares here, in one table,
 the scenarios its method is made for: the train model (single point or multi-car), the
 inputs (one whole-train force or per-car forces), the task (stopping at a mark or
-cruising on a speed command), the actuator its prediction model accounts for (order of
-the lag, dead time) and what it reads of the line. :func:`unsupported_reason` compares a
+cruising on a speed command), how a stopping run's reference must be indexed (by
+distance or time), the actuator its prediction model accounts for (order of the lag,
+dead time) and what it reads of the line. :func:`unsupported_reason` compares a
 scenario with these and returns the first requirement it breaks, in words;
 :func:`train_envs.controllers.make_controller` raises :class:`UnsupportedScenarioError`
 with that reason, so a run is refused at construction rather than failing (or running
@@ -23,6 +24,7 @@ from train_envs.validation import check_choice
 __all__ = [
     "CAR_MODELS",
     "INPUT_MODES",
+    "REFERENCE_MODES",
     "TASKS",
     "Requirements",
     "UnsupportedScenarioError",
@@ -37,6 +39,8 @@ CAR_MODELS = ("single", "multi", "any")
 INPUT_MODES = ("total", "per_car")
 #: stopping at ``s_stop_m``, or cruising on a speed command (``s_stop_m is None``)
 TASKS = ("stopping", "cruise")
+#: a reference indexed by position, v_ref(s), or by time, v_ref(t) and s_ref(t)
+REFERENCE_MODES = ("distance", "time")
 
 
 class UnsupportedScenarioError(ValueError):
@@ -52,9 +56,15 @@ class Requirements:
         cars: ``"single"`` (single-point train), ``"multi"`` (n_cars ≥ 2) or ``"any"``.
         inputs: the input modes it accepts (``"total"``, ``"per_car"``).
         tasks: the tasks it accepts (``"stopping"``, ``"cruise"``).
+        stop_references: the reference modes it stops on (``"distance"``, ``"time"``);
+            its own paper's scenarios are exempt (they run as the paper ran them).
         max_actuator_order: highest actuator order its model accounts for (0: forces
             act at once, 1: first-order lag, 2: second-order actuator).
         dead_time: whether it accepts an actuator dead time.
+        persistent_disturbance: whether it accepts a scenario with a persistent force
+            (``disturbance.wind``): ``False`` for a method without integral action or
+            disturbance estimate, whose steady speed error under a constant force
+            integrates into a position lag growing with the run.
         line: what it reads of the line (informative: every scenario carries a track).
         why: the reason behind the narrowest requirement, quoted in refusals.
         own_scenarios: the scenarios of the controller's own paper, whose reproduction
@@ -65,15 +75,21 @@ class Requirements:
     cars: str = "any"
     inputs: tuple[str, ...] = INPUT_MODES
     tasks: tuple[str, ...] = TASKS
+    stop_references: tuple[str, ...] = REFERENCE_MODES
     max_actuator_order: int = 2
     dead_time: bool = True
+    persistent_disturbance: bool = True
     line: str = "gradient and speed limits"
     why: str = ""
     own_scenarios: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         check_choice("cars", self.cars, CAR_MODELS, sort=False)
-        for name, allowed in (("inputs", INPUT_MODES), ("tasks", TASKS)):
+        for name, allowed in (
+            ("inputs", INPUT_MODES),
+            ("tasks", TASKS),
+            ("stop_references", REFERENCE_MODES),
+        ):
             vals = getattr(self, name)
             if not vals or any(v not in allowed for v in vals):
                 raise ValueError(f"{name} must be a non-empty subset of {allowed}, got {vals!r}")
@@ -88,7 +104,12 @@ class Requirements:
         inputs = "/".join("per-car" if i == "per_car" else "lumped" for i in self.inputs)
         act = ("no lag", "lag <= 1st order", "lag <= 2nd order")[self.max_actuator_order]
         dead = "dead time ok" if self.dead_time else "no dead time"
-        return f"{cars}, {inputs} inputs, {'/'.join(self.tasks)}, {act}, {dead}; line: {self.line}"
+        if not self.persistent_disturbance:
+            dead += ", no persistent disturbance"
+        tasks = "/".join(self.tasks)
+        if "stopping" in self.tasks and self.stop_references != REFERENCE_MODES:
+            tasks += f" (stops on {'/'.join(self.stop_references)}-indexed references)"
+        return f"{cars}, {inputs} inputs, {tasks}, {act}, {dead}; line: {self.line}"
 
     def unsupported_reason(self, scenario: Any) -> str | None:
         """The first requirement ``scenario`` breaks, in words, or ``None``."""
@@ -107,6 +128,16 @@ class Requirements:
         task = "cruise" if scenario.s_stop_m is None else "stopping"
         if task not in self.tasks:
             return f"needs a {'/'.join(self.tasks)} task, got a {task} run{why}"
+        mode = scenario.reference.mode
+        if (
+            task == "stopping"
+            and mode not in self.stop_references
+            and scenario.name not in self.own_scenarios
+        ):
+            return (
+                f"stops on a {'/'.join(self.stop_references)}-indexed reference, "
+                f"got a {mode}-indexed stopping run{why}"
+            )
         order = int(scenario.actuator.order)
         if order > self.max_actuator_order:
             kinds = ("no actuator dynamics", "a first-order actuator lag at most")
@@ -119,10 +150,23 @@ class Requirements:
                 f"needs an actuator without dead time, got "
                 f"{float(scenario.actuator.dead_time_s):g} s{why}"
             )
+        wind = scenario.disturbance.wind
+        if not self.persistent_disturbance and wind is not None:
+            return (
+                f"needs a scenario without a persistent disturbance, got {wind} wind "
+                "(no integral action or disturbance estimate: a constant force leaves a "
+                "steady speed error, and the position lag grows with the run)"
+            )
         return None
 
 
 _SINGLE_POINT = "gradient and speed limits (feedforward)"
+_NO_POSITION_LOOP = (
+    "speed tracking without position feedback: on v_ref(s) the train slows to the mark "
+    "because the reference does, but on a timetable v_ref(t) the stop error is the "
+    "integral of the speed error (start lag, lag and dead time in the final braking), "
+    "which nothing corrects; station stops need a position loop (pid, afsmc)"
+)
 _COUPLED_CARS = (
     "paper 000's model: per-car forces acting at once on coupled cars; "
     "for a single-point train use mpc, which predicts the lag and dead time"
@@ -152,13 +196,14 @@ REQUIREMENTS: dict[str, Requirements] = {
     ),
     "tracking": Requirements(
         "reference tracking: feedforward plus proportional speed feedback",
+        stop_references=("distance",),
         line=_SINGLE_POINT,
+        why=_NO_POSITION_LOOP,
         own_scenarios=P001,
     ),
     "fuzzy_pid": Requirements(
         "PID with fuzzy online correction of its gains (paper 004's comparator)",
         line=_SINGLE_POINT,
-        own_scenarios=P004,
     ),
     "afsmc": Requirements(
         "adaptive fuzzy sliding-mode control on speed and position error",
@@ -167,7 +212,9 @@ REQUIREMENTS: dict[str, Requirements] = {
     ),
     "afsmc000": Requirements(
         "adaptive fuzzy sliding-mode control on speed error (paper 000's comparator)",
+        stop_references=("distance",),
         line=_SINGLE_POINT,
+        why=_NO_POSITION_LOOP,
         own_scenarios=P000,
     ),
     "dmc": Requirements(
@@ -197,6 +244,7 @@ REQUIREMENTS: dict[str, Requirements] = {
         dead_time=False,
         line="gradient and speed limits",
         why="its T-S fuzzy model has one force and one speed per car",
+        persistent_disturbance=False,
         own_scenarios=P003,
     ),
     "rmpc": Requirements(
@@ -258,9 +306,21 @@ def _integrate_on_timetable(scenario: Any) -> dict[str, Any]:
     return {}
 
 
+def _pid_on_timetable(scenario: Any) -> dict[str, Any]:
+    """``pid`` on a time-indexed stop: integrate in every step, and the critically
+    damped position loop ``k_i = k_p² / 4`` (see ``pid``)."""
+    out = _integrate_on_timetable(scenario)
+    if out:
+        from train_envs.controllers.pid import PIDController
+
+        kp = next(p.default for p in PIDController.PARAMS if p.name == "kp")
+        out["ki"] = kp * kp / 4.0
+    return out
+
+
 #: controller -> the options it derives from a scenario
 _DERIVED: dict[str, Callable[[Any], dict[str, Any]]] = {
-    "pid": _integrate_on_timetable,
+    "pid": _pid_on_timetable,
     "fuzzy_pid": _integrate_on_timetable,
 }
 
