@@ -87,6 +87,8 @@ def _single_arrays(sc, ctrl, seed):
 
 CASES = [
     ("pid", "paper001_stopping", [{}, {"kp": 2.0, "ki": 0.3, "kd": 0.5}, {"kp": 0.05}]),
+    # a time-indexed stop: the PIDs integrate in every step (the derived defaults)
+    ("pid", "yizhuang", [{}, {"kp": 0.6, "ki": 0.09}]),
     ("fuzzy_pid", "paper004_urban", [{}, {"kp0": 3.0, "ke": 30.0, "dkp": 2.0}, {"kd0": 1.5}]),
     (
         "dmc",

@@ -182,6 +182,8 @@ class BatchPID(_BatchPIDBase):
             du = ctx.du_max_Nps * dt * ctx.n_inputs
             u_sat = clip_like(u_sat, u_prev_N - du, u_prev_N + du)
         grow = (u_sat == u) | ((u > u_sat) & (e < 0)) | ((u < u_sat) & (e > 0))
+        if self.ref.integrate_saturated:
+            grow[:] = True  # integrate in every step (see PIDController)
         self.integral[ix] = np.where(grow, self.integral[ix] + e * dt, self.integral[ix])
         return u_sat / ctx.n_inputs, {}
 
@@ -221,5 +223,7 @@ class BatchFuzzyPID(_BatchPIDBase):
             u_sat = clip_like(u_sat, u_prev_N - ref._du_step, u_prev_N + ref._du_step)
         clipped = np.abs(u_sat - u) > 1e-9 * np.where(hi - lo > 1.0, hi - lo, 1.0)
         grow = ~clipped | ((u > u_sat) & (e < 0)) | ((u < u_sat) & (e > 0))
+        if ref.integrate_saturated:
+            grow[:] = True  # integrate in every step (see FuzzyPIDController)
         self.integral[ix] = np.where(grow, self.integral[ix] + ki * e * dt, self.integral[ix])
         return u_sat, {}
