@@ -91,6 +91,7 @@ def _qps(ctrl) -> list[LinearMPC]:
         "TrainEnvs/Section000-v0",
         "TrainEnvs/Cruise002-v0",
         "TrainEnvs/Yizhuang-v0",
+        "TrainEnvs/Zurich-v0",
     ],
 )
 def test_env_qps_after_random_actions_equal_a_cold_rebuild(env_id):

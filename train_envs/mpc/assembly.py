@@ -28,12 +28,43 @@ from numpy.typing import ArrayLike
 from train_envs.mpc.blas import single_thread_blas
 from train_envs.mpc.description import _check_penalty_arg, _weight
 
+_MEMO_MAX = 64  # entries per memo below (a tuner's weight search would grow them)
+_SQRT: dict[bytes, np.ndarray] = {}
+_CHECKED: dict[tuple[str, bytes], np.ndarray] = {}
+
+
+def _memo_put(memo: dict, key: object, value: np.ndarray) -> np.ndarray:
+    value.setflags(write=False)  # shared between problems
+    if len(memo) >= _MEMO_MAX:
+        memo.clear()
+    memo[key] = value
+    return value
+
 
 def _psd_sqrt(W: np.ndarray) -> np.ndarray:
-    """Return L with L.T @ L == W for a symmetric PSD W (rows of zero weight dropped)."""
+    """Return L with L.T @ L == W for a symmetric PSD W (rows of zero weight dropped;
+    remembered per value: a family of problems shares its weights)."""
+    key = W.tobytes()
+    hit = _SQRT.get(key)
+    if hit is not None:
+        return hit
     lam, V = np.linalg.eigh(W)
     keep = lam > 1e-14 * max(1.0, float(np.max(np.abs(lam), initial=0.0)))
-    return np.sqrt(lam[keep])[:, None] * V[:, keep].T
+    return _memo_put(_SQRT, key, np.sqrt(lam[keep])[:, None] * V[:, keep].T)
+
+
+def _checked_weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
+    """``_weight(name, value, dim)``; a float ``(dim, dim)`` array equal byte for byte to
+    one checked before returns that check's (read-only) result."""
+    if not (isinstance(value, np.ndarray) and value.dtype == np.float64):
+        return _weight(name, value, dim)
+    if value.shape != (dim, dim):
+        return _weight(name, value, dim)
+    key = (name, value.tobytes())
+    hit = _CHECKED.get(key)
+    if hit is not None:
+        return hit
+    return _memo_put(_CHECKED, key, _weight(name, value, dim))
 
 
 def _scaled_blocks(D: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -415,15 +446,15 @@ class _AssemblyMixin:
         to reserve them).  ``soft_penalty`` may change finite values but cannot turn a
         soft row hard or vice versa (that would change the QP structure).
         """
-        Q_ = self._Q if Q is None else _weight("Q", Q, self.p)
-        R_ = self._R if R is None else _weight("R", R, self.m)
+        Q_ = self._Q if Q is None else _checked_weight("Q", Q, self.p)
+        R_ = self._R if R is None else _checked_weight("R", R, self.m)
         if S is not None and self._S is None:
             raise ValueError("S was not given at construction; pass S=0 there to reserve it")
         if P is not None and self._P is None:
             raise ValueError("P was not given at construction; pass P=0 there to reserve it")
-        S_ = self._S if S is None else _weight("S", S, self.m)
+        S_ = self._S if S is None else _checked_weight("S", S, self.m)
         dimP = self.n if self.terminal == "state" else self.p
-        P_ = self._P if P is None else _weight("P", P, dimP)
+        P_ = self._P if P is None else _checked_weight("P", P, dimP)
         g_ = self._gamma if soft_quadratic is None else self._check_gamma(soft_quadratic)
         scales = None if stage_scales is None else self._check_stage_scales(stage_scales)
         new_rho = None
