@@ -365,11 +365,14 @@ class _AssemblyMixin:
             L_parts.append(_psd_sqrt(self._P))
         W = _block_diag(W_parts)
         Lw = _block_diag(L_parts)
-        EzW = Ez.T @ W
-        H = EzW @ Ez
-        H = 0.5 * (H + H.T)
-        Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
-        Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+        self._Lw = Lw
+        self._lw_ez = None
+        self._condensed_src = (Ez, Eth, W, Lw)
+        # the sparse form needs the condensed quantities only for the refinement and the
+        # fallback: made on first use (:meth:`_condensed_data`)
+        self._condensed = None
+        if not sparse:
+            self._condensed_data()
 
         con = self._con
         rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
@@ -382,6 +385,7 @@ class _AssemblyMixin:
         sl = np.arange(ns)
         Pd = np.zeros((nv, nv))
         if not sparse:
+            H, Fq, Lth_c = self._condensed
             Pd[:nz, :nz] = 2.0 * np.triu(H)
             Hw_q = Fq  # q of the non-slack variables
             Lth = Lth_c
@@ -412,10 +416,43 @@ class _AssemblyMixin:
         n_tu = 0 if sparse else self._n_plan
         self._v_plan = slice(t0, t0 + n_tu)
         self._v_cost = slice(t0 + n_tu, M.shape[0])
-        # condensed data for gain_unconstrained(), the refinement and the fallback
-        self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
-        # weighted residuals e = LwEz z + Lth_c theta (unconstrained_affine's cost)
-        self._LwEz = None if sparse else Lw @ Ez
+
+    def _condensed_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(H, Fq, Lth_c)`` of the current weights: the condensed Hessian, the linear cost
+        map ``q_z = Fq θ`` and the cost constant's factor (made once per weight change)."""
+        c = self._condensed
+        if c is None:
+            Ez, Eth, W, Lw = self._condensed_src
+            EzW = Ez.T @ W
+            H = EzW @ Ez
+            H = 0.5 * (H + H.T)
+            Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
+            Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+            c = self._condensed = (H, Fq, Lth_c)
+        return c
+
+    # condensed data for gain_unconstrained(), the refinement and the fallback
+    @property
+    def _H(self) -> np.ndarray:
+        return self._condensed_data()[0]
+
+    @property
+    def _Fq(self) -> np.ndarray:
+        return self._condensed_data()[1]
+
+    @property
+    def _Lth_c(self) -> np.ndarray:
+        return self._condensed_data()[2]
+
+    @property
+    def _LwEz(self) -> np.ndarray | None:
+        """Weighted residuals ``e = LwEz z + Lth_c θ`` (condensed form; unconstrained_affine's
+        cost), made on first use after a weight change."""
+        if self._sparse:
+            return None
+        if self._lw_ez is None:
+            self._lw_ez = self._Lw @ self._condensed_src[0]
+        return self._lw_ez
 
     def _q_init(self) -> np.ndarray:
         q = np.zeros(self._n_var)
