@@ -4,8 +4,9 @@
 per model; these tests check that the result equals a full rebuild (the path of the
 constructor) bit for bit, for both QP forms, and, on every MPC env under a random
 action sequence, that the controllers' QPs after many weight changes equal a cold
-rebuild of the same model and weights; decisions from the same data then agree to
-the solver's tolerance (OSQP's scaling is fixed at its setup).
+rebuild of the same model and weights and the tube MPC's closed forms a cold
+composition; decisions from the same data then agree to the solver's tolerance
+(OSQP's scaling is fixed at its setup).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from test_mpc_core import random_instance
 import train_envs  # noqa: F401
 from train_envs._jit import enabled, implementation
 from train_envs.controllers import make_controller
+from train_envs.controllers.tube.closed_form import make_closed_form
 from train_envs.mpc import LinearMPC
 from train_envs.mpc.blas import single_thread_blas
 from train_envs.scenarios import get_scenario
@@ -84,6 +86,18 @@ def _qps(ctrl) -> list[LinearMPC]:
     return [ctrl._mpc]
 
 
+def after_random_actions(env_id: str, steps: int = 8) -> gym.Env:
+    """The env after ``steps`` uniformly random actions (seeded; stops at an episode end)."""
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    for _ in range(steps):
+        _, _, term, trunc, _ = env.step(env.action_space.sample())
+        if term or trunc:
+            break
+    return env
+
+
 @pytest.mark.parametrize(
     "env_id",
     [
@@ -91,21 +105,39 @@ def _qps(ctrl) -> list[LinearMPC]:
         "TrainEnvs/Section000-v0",
         "TrainEnvs/Cruise002-v0",
         "TrainEnvs/Yizhuang-v0",
+        "TrainEnvs/Zurich-v0",
     ],
 )
 def test_env_qps_after_random_actions_equal_a_cold_rebuild(env_id):
-    env = gym.make(env_id)
-    env.reset(seed=0)
-    env.action_space.seed(0)
-    for _ in range(8):
-        _, _, term, trunc, _ = env.step(env.action_space.sample())
-        if term or trunc:
-            break
+    env = after_random_actions(env_id)
     ctrl = env.unwrapped.controller
     with single_thread_blas():  # as in the env step (BLAS results depend on threads)
         for mpc in _qps(ctrl):
             warm = _snapshot(mpc)
             _equal(warm, _cold(mpc))
+    env.close()
+
+
+def test_rsmpc_closed_forms_after_random_actions_equal_cold_ones():
+    env = after_random_actions("TrainEnvs/Stopping001-v0")
+    ctrl = env.unwrapped.controller
+    seen = 0
+    with single_thread_blas():
+        for M in sorted(ctrl._problems):
+            prob = ctrl._problem(M)
+            warm = ctrl._explicit(prob)
+            if warm is False:
+                continue
+            prob.theta_fold = None
+            prob.mpc._unc_cache = None
+            cold = make_closed_form(prob, ctrl._layout, ctrl._s_max)
+            for k in ("cols", "T", "b"):
+                np.testing.assert_array_equal(getattr(warm, k), getattr(cold, k), err_msg=k)
+            assert (warm.Umap is None) == (cold.Umap is None)
+            if warm.Umap is not None:
+                np.testing.assert_array_equal(warm.Umap, cold.Umap)
+            seen += 1
+    assert seen >= 1
     env.close()
 
 

@@ -28,12 +28,43 @@ from numpy.typing import ArrayLike
 from train_envs.mpc.blas import single_thread_blas
 from train_envs.mpc.description import _check_penalty_arg, _weight
 
+_MEMO_MAX = 64  # entries per memo below (a tuner's weight search would grow them)
+_SQRT: dict[bytes, np.ndarray] = {}
+_CHECKED: dict[tuple[str, bytes], np.ndarray] = {}
+
+
+def _memo_put(memo: dict, key: object, value: np.ndarray) -> np.ndarray:
+    value.setflags(write=False)  # shared between problems
+    if len(memo) >= _MEMO_MAX:
+        memo.clear()
+    memo[key] = value
+    return value
+
 
 def _psd_sqrt(W: np.ndarray) -> np.ndarray:
-    """Return L with L.T @ L == W for a symmetric PSD W (rows of zero weight dropped)."""
+    """Return L with L.T @ L == W for a symmetric PSD W (rows of zero weight dropped;
+    remembered per value: a family of problems shares its weights)."""
+    key = W.tobytes()
+    hit = _SQRT.get(key)
+    if hit is not None:
+        return hit
     lam, V = np.linalg.eigh(W)
     keep = lam > 1e-14 * max(1.0, float(np.max(np.abs(lam), initial=0.0)))
-    return np.sqrt(lam[keep])[:, None] * V[:, keep].T
+    return _memo_put(_SQRT, key, np.sqrt(lam[keep])[:, None] * V[:, keep].T)
+
+
+def _checked_weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
+    """``_weight(name, value, dim)``; a float ``(dim, dim)`` array equal byte for byte to
+    one checked before returns that check's (read-only) result."""
+    if not (isinstance(value, np.ndarray) and value.dtype == np.float64):
+        return _weight(name, value, dim)
+    if value.shape != (dim, dim):
+        return _weight(name, value, dim)
+    key = (name, value.tobytes())
+    hit = _CHECKED.get(key)
+    if hit is not None:
+        return hit
+    return _memo_put(_CHECKED, key, _weight(name, value, dim))
 
 
 def _scaled_blocks(D: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -334,11 +365,14 @@ class _AssemblyMixin:
             L_parts.append(_psd_sqrt(self._P))
         W = _block_diag(W_parts)
         Lw = _block_diag(L_parts)
-        EzW = Ez.T @ W
-        H = EzW @ Ez
-        H = 0.5 * (H + H.T)
-        Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
-        Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+        self._Lw = Lw
+        self._lw_ez = None
+        self._condensed_src = (Ez, Eth, W, Lw)
+        # the sparse form needs the condensed quantities only for the refinement and the
+        # fallback: made on first use (:meth:`_condensed_data`)
+        self._condensed = None
+        if not sparse:
+            self._condensed_data()
 
         con = self._con
         rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
@@ -351,6 +385,7 @@ class _AssemblyMixin:
         sl = np.arange(ns)
         Pd = np.zeros((nv, nv))
         if not sparse:
+            H, Fq, Lth_c = self._condensed
             Pd[:nz, :nz] = 2.0 * np.triu(H)
             Hw_q = Fq  # q of the non-slack variables
             Lth = Lth_c
@@ -381,10 +416,43 @@ class _AssemblyMixin:
         n_tu = 0 if sparse else self._n_plan
         self._v_plan = slice(t0, t0 + n_tu)
         self._v_cost = slice(t0 + n_tu, M.shape[0])
-        # condensed data for gain_unconstrained(), the refinement and the fallback
-        self._H, self._Fq, self._Lth_c = H, Fq, Lth_c
-        # weighted residuals e = LwEz z + Lth_c theta (unconstrained_affine's cost)
-        self._LwEz = None if sparse else Lw @ Ez
+
+    def _condensed_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(H, Fq, Lth_c)`` of the current weights: the condensed Hessian, the linear cost
+        map ``q_z = Fq θ`` and the cost constant's factor (made once per weight change)."""
+        c = self._condensed
+        if c is None:
+            Ez, Eth, W, Lw = self._condensed_src
+            EzW = Ez.T @ W
+            H = EzW @ Ez
+            H = 0.5 * (H + H.T)
+            Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
+            Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+            c = self._condensed = (H, Fq, Lth_c)
+        return c
+
+    # condensed data for gain_unconstrained(), the refinement and the fallback
+    @property
+    def _H(self) -> np.ndarray:
+        return self._condensed_data()[0]
+
+    @property
+    def _Fq(self) -> np.ndarray:
+        return self._condensed_data()[1]
+
+    @property
+    def _Lth_c(self) -> np.ndarray:
+        return self._condensed_data()[2]
+
+    @property
+    def _LwEz(self) -> np.ndarray | None:
+        """Weighted residuals ``e = LwEz z + Lth_c θ`` (condensed form; unconstrained_affine's
+        cost), made on first use after a weight change."""
+        if self._sparse:
+            return None
+        if self._lw_ez is None:
+            self._lw_ez = self._Lw @ self._condensed_src[0]
+        return self._lw_ez
 
     def _q_init(self) -> np.ndarray:
         q = np.zeros(self._n_var)
@@ -415,15 +483,15 @@ class _AssemblyMixin:
         to reserve them).  ``soft_penalty`` may change finite values but cannot turn a
         soft row hard or vice versa (that would change the QP structure).
         """
-        Q_ = self._Q if Q is None else _weight("Q", Q, self.p)
-        R_ = self._R if R is None else _weight("R", R, self.m)
+        Q_ = self._Q if Q is None else _checked_weight("Q", Q, self.p)
+        R_ = self._R if R is None else _checked_weight("R", R, self.m)
         if S is not None and self._S is None:
             raise ValueError("S was not given at construction; pass S=0 there to reserve it")
         if P is not None and self._P is None:
             raise ValueError("P was not given at construction; pass P=0 there to reserve it")
-        S_ = self._S if S is None else _weight("S", S, self.m)
+        S_ = self._S if S is None else _checked_weight("S", S, self.m)
         dimP = self.n if self.terminal == "state" else self.p
-        P_ = self._P if P is None else _weight("P", P, dimP)
+        P_ = self._P if P is None else _checked_weight("P", P, dimP)
         g_ = self._gamma if soft_quadratic is None else self._check_gamma(soft_quadratic)
         scales = None if stage_scales is None else self._check_stage_scales(stage_scales)
         new_rho = None

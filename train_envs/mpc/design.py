@@ -3,7 +3,8 @@ r"""Design helpers shared by the controllers: terminal costs and discretisation.
 * :func:`terminal_cost_dare` -- LQR terminal weight from the discrete algebraic Riccati
   equation :math:`P = A^\top P A - A^\top P B (R + B^\top P B)^{-1} B^\top P A + Q_x`;
 * :func:`terminal_cost_lyapunov` -- cost-to-go of a fixed stable loop,
-  :math:`A_{cl}^\top P A_{cl} - P + Q_x = 0`;
+  :math:`A_{cl}^\top P A_{cl} - P + Q_x = 0`; :class:`LyapunovSolver` -- the same for
+  many :math:`Q_x` and one loop (its linear system factorised once);
 * :func:`augmented_terminal_cost` -- the Riccati terminal cost of the
   :math:`\Delta u`-augmented model :math:`\xi = [x; u_{k-1}]` (papers 000 sec. III-B,
   001 eq. 11, 20), solved by :func:`dare_doubling` (scipy's Schur method where the
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.linalg import expm, solve_discrete_are, solve_discrete_lyapunov
+from scipy.linalg import expm, lu_factor, lu_solve, solve_discrete_are, solve_discrete_lyapunov
 
 from train_envs._jit import implementation, register
 from train_envs.mpc.description import _matrix, _weight
@@ -67,6 +68,40 @@ def terminal_cost_lyapunov(A_cl: ArrayLike, Qx: ArrayLike) -> np.ndarray:
         raise ValueError(f"A_cl must be Schur stable (spectral radius {rad:.6g} >= 1)")
     P = solve_discrete_lyapunov(Acl.T, Q_)
     return 0.5 * (P + P.T)
+
+
+class LyapunovSolver:
+    r""":func:`terminal_cost_lyapunov` for one stable loop ``A_cl`` and many ``Q_x``.
+
+    ``A_cl`` is checked (square, finite, Schur stable) once. For ``n < 10`` scipy's
+    direct method solves :math:`(I - A_{cl}^\top \otimes A_{cl}^\top) \operatorname{vec}
+    P = \operatorname{vec} Q_x` with LAPACK ``getrf`` + ``getrs``; here ``getrf`` runs
+    once (:func:`scipy.linalg.lu_factor`) and each :meth:`solve` is the ``getrs`` of the
+    same factors, so its result equals :func:`terminal_cost_lyapunov`'s bit for bit
+    (tested). Larger loops call :func:`terminal_cost_lyapunov` itself.
+    """
+
+    def __init__(self, A_cl: ArrayLike) -> None:
+        Acl = _matrix("A_cl", A_cl)
+        n = Acl.shape[0]
+        if Acl.shape != (n, n):
+            raise ValueError(f"A_cl must be square, got shape {Acl.shape}")
+        rad = float(np.max(np.abs(np.linalg.eigvals(Acl)))) if n else 0.0
+        if rad >= 1.0:
+            raise ValueError(f"A_cl must be Schur stable (spectral radius {rad:.6g} >= 1)")
+        self.n = n
+        self._Acl = Acl
+        a = Acl.T
+        self._lu = lu_factor(np.eye(n * n) - np.kron(a, a.conj())) if 0 < n < 10 else None
+
+    def solve(self, Qx: ArrayLike) -> np.ndarray:
+        """``P`` with ``A_clᵀ P A_cl − P + Q_x = 0`` (symmetrised, as
+        :func:`terminal_cost_lyapunov` returns it)."""
+        if self._lu is None:
+            return terminal_cost_lyapunov(self._Acl, Qx)
+        Q_ = _weight("Qx", Qx, self.n)
+        P = lu_solve(self._lu, Q_.flatten()).reshape(Q_.shape)
+        return 0.5 * (P + P.T)
 
 
 def zoh(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

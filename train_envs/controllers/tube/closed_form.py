@@ -25,6 +25,7 @@ from train_envs._jit import register
 from train_envs.controllers.tube.kernels import closed_form_source
 from train_envs.controllers.tube.problem import ClosedForm, TubeProblem
 from train_envs.controllers.tube.stage import StageLayout
+from train_envs.mpc import UnconstrainedAffine
 
 __all__ = ["ClosedForm", "adopt", "closed_form_cost", "make_closed_form"]
 
@@ -56,24 +57,18 @@ def adopt(prob: TubeProblem, h: np.ndarray, rate: float) -> float:
     return min(max(float(z[0]), -rate), rate)
 
 
-def make_closed_form(prob: TubeProblem, layout: StageLayout, s_max: float) -> ClosedForm | bool:
-    """Compose the core's unconstrained optimum (:meth:`LinearMPC.unconstrained_affine`)
-    with the stage vector of :mod:`.stage` and the rows the QP sets.
-
-    Row for row the same constraints as the QP: the increment box ``|Δu_i| <= du_i``
-    (held stages pinned at 0), per stage ``s + s_o <= s_max − τ_s``, ``v >= v_min``,
-    ``v − v_lim <= −τ_v``, ``u_lo + τ_u <= u <= u_hi − τ_u``, and the terminal rows
-    ``h A_cl^t ξ_N − h ξ_s,N + (s_o + s_r,N+t | v_r,N+t − v_lim,N+t) <= (s_max | 0) −
-    τ_N+t``.  False when the core has no closed form for this problem.
-    """
-    aff = prob.mpc.unconstrained_affine()
-    if aff is None or prob.du is None or aff.Z.shape[0] != prob.Np:
-        return False
+def _theta_fold(prob: TubeProblem, layout: StageLayout, aff: UnconstrainedAffine) -> tuple:
+    """Where each entry of the core's data vector θ comes from in the stage vector
+    (before folding): ``(order, coef[order], gcols, starts, ngv)``, the gather of θ's
+    columns sorted by their target and summed per target (weight independent: made once
+    per problem and layout, kept on the problem)."""
+    hit = prob.theta_fold
+    if hit is not None and hit[0] is layout and hit[1] == aff.ntheta:
+        return hit[2]
     Np, l, ng = prob.Np, layout.l, layout.n_grid  # noqa: E741
     nth = aff.ntheta
-    XS, VL = 6, 6 + 5 * ng
+    XS = 6
     RES = 6 + 4 * ng
-    # where each entry of the core's data vector θ comes from in the stage vector
     tgt = np.full(nth, -1)
     coef = np.ones(nth)
     ith = np.arange(nth)
@@ -92,13 +87,35 @@ def make_closed_form(prob: TubeProblem, layout: StageLayout, s_max: float) -> Cl
     used = np.flatnonzero(tgt >= 0)
     order = used[np.argsort(tgt[used], kind="stable")]
     gcols, starts = np.unique(tgt[order], return_index=True)
-    ngv = 6 + 6 * ng
+    out = (order, coef[order], gcols, starts, 6 + 6 * ng)
+    prob.theta_fold = (layout, nth, out)
+    return out
+
+
+def make_closed_form(prob: TubeProblem, layout: StageLayout, s_max: float) -> ClosedForm | bool:
+    """Compose the core's unconstrained optimum (:meth:`LinearMPC.unconstrained_affine`)
+    with the stage vector of :mod:`.stage` and the rows the QP sets.
+
+    Row for row the same constraints as the QP: the increment box ``|Δu_i| <= du_i``
+    (held stages pinned at 0), per stage ``s + s_o <= s_max − τ_s``, ``v >= v_min``,
+    ``v − v_lim <= −τ_v``, ``u_lo + τ_u <= u <= u_hi − τ_u``, and the terminal rows
+    ``h A_cl^t ξ_N − h ξ_s,N + (s_o + s_r,N+t | v_r,N+t − v_lim,N+t) <= (s_max | 0) −
+    τ_N+t``.  False when the core has no closed form for this problem.
+    """
+    aff = prob.mpc.unconstrained_affine()
+    if aff is None or prob.du is None or aff.Z.shape[0] != prob.Np:
+        return False
+    Np, nth = prob.Np, aff.ntheta
+    order, coef_o, gcols, starts, ngv = _theta_fold(prob, layout, aff)
 
     def on_g(A: np.ndarray) -> np.ndarray:
         out = np.zeros((A.shape[0], ngv))
-        out[:, gcols] = np.add.reduceat(A[:, order] * coef[order], starts, axis=1)
+        out[:, gcols] = np.add.reduceat(A[:, order] * coef_o, starts, axis=1)
         return out
 
+    l, ng = layout.l, layout.n_grid  # noqa: E741
+    XS, VL = 6, 6 + 5 * ng
+    stage = l + 1 + np.arange(Np)  # grid index of stage i = 1..Np
     Y = aff.Y.reshape(Np, 3, nth)
     Z = aff.Z
     ymin, ymax = prob.y_min, prob.y_max

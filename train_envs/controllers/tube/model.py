@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from train_envs.controllers.models import dead_time_maps, discretise, point_lag_continuous
-from train_envs.mpc.design import terminal_cost_dare, terminal_cost_lyapunov
+from train_envs.mpc.design import LyapunovSolver, terminal_cost_dare
 from train_envs.validation import check_positive, check_range
 
 __all__ = [
@@ -175,7 +175,16 @@ def terminal_weight(A_cl: np.ndarray, K: np.ndarray, Qx: np.ndarray, r: float) -
     Schur stable.
     """
     K = np.asarray(K, float).reshape(1, -1)
-    return terminal_cost_lyapunov(A_cl, Qx + r * (K.T @ K))
+    A = np.asarray(A_cl, float)
+    key = (A.shape, A.tobytes())
+    solver = _LYAPUNOV.get(key)
+    if solver is None:
+        solver = LyapunovSolver(A)
+        _cache_put(_LYAPUNOV, key, solver)
+    return solver.solve(Qx + r * (K.T @ K))
+
+
+_LYAPUNOV: dict[tuple, LyapunovSolver] = {}  # per loop A_cl: its factorised linear system
 
 
 # ------------------------------------------------------------------------ tightening

@@ -88,6 +88,7 @@ class TubeProblem:
     buffers: tuple | None = None  # per-step index constants and work arrays of solve
     du: np.ndarray | None = None  # per-stage increment bound (0: pinned, a held stage)
     explicit: ClosedForm | bool | None = None  # closed form (None: not made, False: n/a)
+    theta_fold: tuple | None = None  # weight-independent gather of the closed form's θ
 
     def set_disturbance_bound(self, wb: float, lim: Limits, st: TubeSettings) -> None:
         """Tighten the bounds for the disturbance bound ``w̄ = wb`` (module docstring)."""
