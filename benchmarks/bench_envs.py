@@ -23,10 +23,11 @@ reset time included).
 ``--osqp-tail [--steps 300]``: per id, the solve times of every QP solve that ran OSQP
 (``MPCSolution.solve_time_s``: OSQP plus the exact finish; the RSMPC's candidates one
 by one) at the constant default action and under random actions: the 99th percentile
-and the maximum, how many took more than 2 ms, the ADMM iterations (99th percentile,
-maximum, solves at the iteration cap: figures that do not depend on the machine's
-load), the solves finished exactly by DAQP with the finish's time per call, and the
-fallback commands.
+and the maximum, how many took more than 2 ms, the 99th percentile of the call's
+thread CPU time, the ADMM iterations (99th percentile, maximum, solves at the
+iteration cap: figures that do not depend on the machine's load), the solves finished
+exactly by DAQP (a finish that ends in an infeasibility verdict counts too), the
+median time per call of OSQP's part and of the finish, and the fallback commands.
 
 ``--compare OLD NEW [--rounds 5]`` runs the benchmark on two source trees (each a
 directory holding ``train_envs``) in subprocesses, alternating the order every round,
@@ -184,11 +185,12 @@ def osqp_tail(ids: list[str], steps: int) -> None:
 
     Every :meth:`LinearMPC.solve` that ran OSQP counts (the RSMPC's candidates one by
     one): its solve time (OSQP plus the exact finish, wall clock, so it grows with the
-    machine's load), the ADMM iterations (independent of the load): their 99th
-    percentile and maximum, the solves at OSQP's iteration cap (``max_iter``; a solve
-    that needed the rescue cascade counts its iterations in all), the solves finished
-    exactly by DAQP with its median and 99th-percentile time per call (measured in the
-    same solves as OSQP's: one process, interleaved) and the fallback commands.
+    machine's load) and the thread CPU time of the whole call (less sensitive to the
+    load), the ADMM iterations (independent of the load): their 99th percentile and
+    maximum, the solves at OSQP's iteration cap (``max_iter``; a solve that needed the
+    rescue cascade counts its iterations in all), the solves finished exactly by DAQP,
+    the median time per call of OSQP's part and of the finish (the same solves: one
+    process, interleaved) and the fallback commands.
     """
     from train_envs.mpc import recovery
     from train_envs.mpc.linear_mpc import LinearMPC
@@ -196,25 +198,29 @@ def osqp_tail(ids: list[str], steps: int) -> None:
     max_iter = int(osqp_settings_with(None)["max_iter"])
     print(
         f"| env id | action | QP solves with OSQP | p99 [ms] | max [ms] | > 2 ms "
-        f"| iterations p99 | iterations max | at the cap | finished exactly "
-        f"| finish median / p99 [ms] | fallbacks |  ({steps} steps)"
+        f"| CPU p99 [ms] | iterations p99 | iterations max | at the cap | finished exactly "
+        f"| OSQP / finish median [ms] | fallbacks |  ({steps} steps)"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    rows: list[tuple[float, float, float]] = []
-    finish: list[float] = []
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    rows: list[tuple[float, float, float, float, float]] = []
+    finish = [0.0, 0.0]  # time of the last finish, count of the finishes
     solve, exact = LinearMPC.solve, getattr(recovery._RecoveryMixin, "_exact", None)
 
     def timed_solve(self, *args, **kwargs):
+        finish[0] = 0.0
+        c0 = time.thread_time()
         sol = solve(self, *args, **kwargs)
+        cpu = time.thread_time() - c0
         if sol.solve_time_s > 0.0:
-            rows.append((sol.solve_time_s, float(sol.iterations), float(sol.fallback)))
+            rows.append(
+                (sol.solve_time_s, cpu, float(sol.iterations), float(sol.fallback), finish[0])
+            )
         return sol
 
     def timed_exact(self, x, y):
         t0 = time.perf_counter()
         out = exact(self, x, y)
-        if out is not None:
-            finish.append(time.perf_counter() - t0)
+        finish[0] = time.perf_counter() - t0
         return out
 
     LinearMPC.solve = timed_solve
@@ -228,19 +234,21 @@ def osqp_tail(ids: list[str], steps: int) -> None:
             acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
             for name, act in acts.items():
                 rows.clear()
-                finish.clear()
                 _rate(env, act, steps, seed=0)
-                a = np.array(rows).reshape(-1, 3)
-                t, it = a[:, 0] * 1e3, a[:, 1]
-                f = np.array(finish) * 1e3
+                a = np.array(rows).reshape(-1, 5) * [1e3, 1e3, 1, 1, 1e3]
+                t, cpu, it, f = a[:, 0], a[:, 1], a[:, 2], a[:, 4]
+                fin = f > 0.0
+                t_osqp = float(np.median(t - f)) if t.size else 0.0
+                t_fin = float(np.median(f[fin])) if fin.any() else 0.0
                 p99 = float(np.percentile(t, 99)) if t.size else 0.0
+                c99 = float(np.percentile(cpu, 99)) if t.size else 0.0
                 it99 = float(np.percentile(it, 99)) if it.size else 0.0
-                f50, f99 = np.percentile(f, [50, 99]) if f.size else (0.0, 0.0)
                 print(
                     f"| {env_id} | {name} | {t.size} | {p99:.2f} | {t.max(initial=0.0):.2f} | "
-                    f"{int(np.sum(t > 2.0))} | {it99:.0f} | {it.max(initial=0.0):.0f} | "
-                    f"{int(np.sum(it >= max_iter))} | {f.size} | {f50:.2f} / {f99:.2f} | "
-                    f"{int(np.sum(a[:, 2] > 0))} |",
+                    f"{int(np.sum(t > 2.0))} | {c99:.2f} | {it99:.0f} | "
+                    f"{it.max(initial=0.0):.0f} | {int(np.sum(it >= max_iter))} | "
+                    f"{int(fin.sum())} | {t_osqp:.2f} / {t_fin:.2f} | "
+                    f"{int(np.sum(a[:, 3] > 0))} |",
                     flush=True,
                 )
             env.close()
