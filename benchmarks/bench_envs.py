@@ -20,12 +20,14 @@ flips every round; one warm-up episode of each first), with the median per-round
 random / constant; each round runs ``--steps`` env steps (episodes restart as needed,
 reset time included).
 
-``--osqp-tail [--steps 300]``: per id, the OSQP solve times of the controller's
-control steps (``solve_time_s`` of its info; the RSMPC sums a trigger's solves) at the
-constant default action and under random actions: steps that ran OSQP, the 99th
-percentile and the maximum over those, how many took more than 2 ms, and the ADMM
-iterations of those steps (99th percentile, maximum, steps at the iteration limit:
-figures that do not depend on the machine's load) and the fallback commands.
+``--osqp-tail [--steps 300]``: per id, the solve times of every QP solve that ran OSQP
+(``MPCSolution.solve_time_s``: OSQP plus the exact finish; the RSMPC's candidates one
+by one) at the constant default action and under random actions: the 99th percentile
+and the maximum, how many took more than 2 ms, the 99th percentile of the call's
+thread CPU time, the ADMM iterations (99th percentile, maximum, solves at the
+iteration cap: figures that do not depend on the machine's load), the solves finished
+exactly by DAQP (a finish that ends in an infeasibility verdict counts too), the
+median time per call of OSQP's part and of the finish, and the fallback commands.
 
 ``--compare OLD NEW [--rounds 5]`` runs the benchmark on two source trees (each a
 directory holding ``train_envs``) in subprocesses, alternating the order every round,
@@ -179,54 +181,81 @@ def side_by_side(ids: list[str], steps: int, rounds: int) -> None:
 
 
 def osqp_tail(ids: list[str], steps: int) -> None:
-    """OSQP solve-time tail per id at constant and random actions.
+    """OSQP solve-time tail per id at constant and random actions, per QP solve.
 
-    Besides OSQP's own solve times (wall clock, so they grow with the machine's load),
-    the ADMM iterations of the same steps (independent of the load): their 99th
-    percentile and maximum, the steps at OSQP's iteration limit (``max_iter``, 4000 by
-    default; a step that needed the rescue cascade counts its iterations in all) and
-    the fallback commands.
+    Every :meth:`LinearMPC.solve` that ran OSQP counts (the RSMPC's candidates one by
+    one): its solve time (OSQP plus the exact finish, wall clock, so it grows with the
+    machine's load) and the thread CPU time of the whole call (less sensitive to the
+    load), the ADMM iterations (independent of the load): their 99th percentile and
+    maximum, the solves at OSQP's iteration cap (``max_iter``; a solve that needed the
+    rescue cascade counts its iterations in all), the solves finished exactly by DAQP,
+    the median time per call of OSQP's part and of the finish (the same solves: one
+    process, interleaved) and the fallback commands.
     """
+    from train_envs.mpc import recovery
+    from train_envs.mpc.linear_mpc import LinearMPC
+
     max_iter = int(osqp_settings_with(None)["max_iter"])
     print(
-        f"| env id | action | steps with OSQP | p99 [ms] | max [ms] | > 2 ms | iterations p99 "
-        f"| iterations max | at the limit | fallbacks |  ({steps} steps)"
+        f"| env id | action | QP solves with OSQP | p99 [ms] | max [ms] | > 2 ms "
+        f"| CPU p99 [ms] | iterations p99 | iterations max | at the cap | finished exactly "
+        f"| OSQP / finish median [ms] | fallbacks |  ({steps} steps)"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for env_id in ids:
-        env = gym.make(env_id)
-        ctrl = env.unwrapped.controller
-        space = env.action_space
-        space.seed(0)
-        rows: list[tuple[float, float, float]] = []
-        orig = ctrl.compute
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    rows: list[tuple[float, float, float, float, float]] = []
+    finish = [0.0, 0.0]  # time of the last finish, count of the finishes
+    solve, exact = LinearMPC.solve, getattr(recovery._RecoveryMixin, "_exact", None)
 
-        def timed(obs, _orig=orig, _rows=rows):
-            out = _orig(obs)
-            info = out[1]
-            t = float(info.get("solve_time_s", 0.0))
-            if t > 0.0:
-                _rows.append(
-                    (t, float(info.get("iterations", 0.0)), float(info.get("fallback", 0.0)))
-                )
-            return out
-
-        ctrl.compute = timed
-        acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
-        for name, act in acts.items():
-            rows.clear()
-            _rate(env, act, steps, seed=0)
-            a = np.array(rows).reshape(-1, 3)
-            t, it = a[:, 0] * 1e3, a[:, 1]
-            p99 = float(np.percentile(t, 99)) if t.size else 0.0
-            it99 = float(np.percentile(it, 99)) if it.size else 0.0
-            print(
-                f"| {env_id} | {name} | {t.size} | {p99:.2f} | {t.max(initial=0.0):.2f} | "
-                f"{int(np.sum(t > 2.0))} | {it99:.0f} | {it.max(initial=0.0):.0f} | "
-                f"{int(np.sum(it >= max_iter))} | {int(np.sum(a[:, 2] > 0))} |",
-                flush=True,
+    def timed_solve(self, *args, **kwargs):
+        finish[0] = 0.0
+        c0 = time.thread_time()
+        sol = solve(self, *args, **kwargs)
+        cpu = time.thread_time() - c0
+        if sol.solve_time_s > 0.0:
+            rows.append(
+                (sol.solve_time_s, cpu, float(sol.iterations), float(sol.fallback), finish[0])
             )
-        env.close()
+        return sol
+
+    def timed_exact(self, x, y):
+        t0 = time.perf_counter()
+        out = exact(self, x, y)
+        finish[0] = time.perf_counter() - t0
+        return out
+
+    LinearMPC.solve = timed_solve
+    if exact is not None:
+        recovery._RecoveryMixin._exact = timed_exact
+    try:
+        for env_id in ids:
+            env = gym.make(env_id)
+            space = env.action_space
+            space.seed(0)
+            acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
+            for name, act in acts.items():
+                rows.clear()
+                _rate(env, act, steps, seed=0)
+                a = np.array(rows).reshape(-1, 5) * [1e3, 1e3, 1, 1, 1e3]
+                t, cpu, it, f = a[:, 0], a[:, 1], a[:, 2], a[:, 4]
+                fin = f > 0.0
+                t_osqp = float(np.median(t - f)) if t.size else 0.0
+                t_fin = float(np.median(f[fin])) if fin.any() else 0.0
+                p99 = float(np.percentile(t, 99)) if t.size else 0.0
+                c99 = float(np.percentile(cpu, 99)) if t.size else 0.0
+                it99 = float(np.percentile(it, 99)) if it.size else 0.0
+                print(
+                    f"| {env_id} | {name} | {t.size} | {p99:.2f} | {t.max(initial=0.0):.2f} | "
+                    f"{int(np.sum(t > 2.0))} | {c99:.2f} | {it99:.0f} | "
+                    f"{it.max(initial=0.0):.0f} | {int(np.sum(it >= max_iter))} | "
+                    f"{int(fin.sum())} | {t_osqp:.2f} / {t_fin:.2f} | "
+                    f"{int(np.sum(a[:, 3] > 0))} |",
+                    flush=True,
+                )
+            env.close()
+    finally:
+        LinearMPC.solve = solve
+        if exact is not None:
+            recovery._RecoveryMixin._exact = exact
 
 
 def compare(

@@ -42,9 +42,7 @@ SEEDS = (0, 1)
 
 @pytest.fixture(scope="module")
 def scenario(paper001):
-    return paper001.with_overrides(
-        disturbance=DisturbanceSpec(random_bound_mps2=W_BAR)
-    )
+    return paper001.with_overrides(disturbance=DisturbanceSpec(random_bound_mps2=W_BAR))
 
 
 @pytest.fixture(scope="module")
@@ -400,7 +398,9 @@ def test_hold_decisions_use_exact_costs():
             mpc._unc_first = False
             mpc._backend.prob.update_settings(eps_abs=1e-10, eps_rel=1e-10, max_iter=200_000)
             ref = solve(prob, last["data"])
-            mpc._backend.prob.update_settings(eps_abs=1e-6, eps_rel=1e-6, max_iter=4000)
+            mpc._backend.prob.update_settings(
+                eps_abs=1e-6, eps_rel=1e-6, max_iter=mpc.osqp_settings["max_iter"]
+            )
             mpc._unc_first = True
             assert ref.status == "solved"
             assert mpc._evaluate_plan(ref.U.ravel())[3] >= J - 1e-12

@@ -604,7 +604,7 @@ def test_fallback_on_non_finite_data_uses_shifted_plan(form):
     assert -1.0 <= sol2.u0[0] <= 1.0
     # recovery: the next valid call is solved normally
     sol3 = mpc.solve(x, sol.u0, np.array([2.0, 0.0]))
-    assert not sol3.fallback and sol3.status == "solved"
+    assert not sol3.fallback and sol3.status in ("solved", "solved (polished)")
 
 
 @pytest.mark.parametrize("form", ["condensed", "sparse"])

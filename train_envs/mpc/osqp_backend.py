@@ -1,6 +1,7 @@
 r"""The OSQP adapter of :class:`~train_envs.mpc.LinearMPC`: the only module touching OSQP.
 
-Default settings: ``eps_abs = eps_rel = 1e-6``, ``max_iter = 4000``,
+Default settings: ``eps_abs = eps_rel = 1e-6``, ``max_iter = 100`` (an iteration cap:
+a solve that reaches it is finished exactly, ``mpc/recovery.py``),
 ``polishing = False``, ``check_dualgap = False``, ``check_termination = 10``,
 ``verbose = False``, ``warm_starting = True``; the OSQP 0.6 names ``polish`` and
 ``warm_start`` are accepted.  Status values are OSQP's (1 solved, 2 solved inaccurate,
@@ -35,7 +36,7 @@ _STATUS_EXCEPTION = -2
 _DEFAULT_OSQP: dict[str, Any] = {
     "eps_abs": 1e-6,
     "eps_rel": 1e-6,
-    "max_iter": 4000,
+    "max_iter": 100,
     "polishing": False,
     "check_dualgap": False,
     "check_termination": 10,

@@ -2,16 +2,22 @@ r"""Recovery of :class:`~train_envs.mpc.LinearMPC` when OSQP does not converge.
 
 ADMM usually identifies the active set long before it meets tight tolerances; this is
 typical when soft constraints are violated (their multipliers sit at the penalty
-:math:`\rho` and the QP behaves like a degenerate LP).  On the statuses solved
-inaccurate and maximum iterations the cascade (:meth:`_RecoveryMixin._rescue`) runs
-(after a primal-infeasibility verdict step 2 only, briefly):
+:math:`\rho` and the QP behaves like a degenerate LP) and at the end of a stop, where
+most slacks sit at zero and ADMM's linear rate is slow (``docs/benchmarks.md``).  OSQP
+therefore runs to an iteration cap (``max_iter``, 100 by default); on the statuses
+solved inaccurate and maximum iterations the cascade (:meth:`_RecoveryMixin._rescue`)
+runs (after a primal-infeasibility verdict step 3 only, briefly):
 
-1. OSQP continued from the last iterate with tolerance :math:`\max(10^{-4}, 10\epsilon)`
+1. the exact finish (:meth:`_RecoveryMixin._exact`): DAQP, the dual active-set solver
+   for small dense QPs of Arnström, Bemporad and Axehill (IEEE TAC 2022), on the full
+   QP, warm-started from OSQP's iterate, accepted only when the full QP's KKT
+   conditions hold to :data:`KKT_TOL`;
+2. OSQP continued from the last iterate with tolerance :math:`\max(10^{-4}, 10\epsilon)`
    and OSQP's polishing;
-2. failing that, an exact primal-dual active-set iteration (semismooth Newton) on the
+3. failing that, an exact primal-dual active-set iteration (semismooth Newton) on the
    condensed QP with the slacks eliminated, accepted only when every KKT condition of
    the full QP holds (:meth:`_RecoveryMixin._refine`);
-3. failing that, the fallback (:meth:`_RecoveryMixin._fallback`): the previous plan
+4. failing that, the fallback (:meth:`_RecoveryMixin._fallback`): the previous plan
    shifted by one stage (or the held input), clipped stage by stage to the box and
    rate window; its prediction, soft violation and cost come from the condensed model
    (:meth:`_RecoveryMixin._evaluate_plan`).
@@ -26,6 +32,7 @@ import math
 import time
 from typing import Any
 
+import daqp
 import numpy as np
 
 from train_envs.mpc.osqp_backend import _BIG, _RESCUE, _SOLVED, _SOLVED_INACCURATE, _Stats
@@ -35,6 +42,14 @@ from train_envs.mpc.solution import MPCSolution
 _PRIMAL_INFEASIBLE = (3, 4)
 #: active-set iterations tried after a primal-infeasibility verdict
 _INFEASIBLE_REFINE = 5
+#: OSQP's statuses maximum iterations and solved inaccurate: finished exactly by DAQP
+_FINISH_EXACT = (7, 2)
+#: relative tolerance of the KKT conditions an exact finish must meet (stationarity
+#: scaled by ``1 + max|q|``, feasibility and complementarity by ``1 + max|bound|``)
+KKT_TOL = 1e-9
+_DAQP_OPTIMAL = 1
+_DAQP_INFEASIBLE = -1
+_PRIMAL_INFEASIBLE_NAME = "primal infeasible"
 
 
 class _RecoveryMixin:
@@ -48,11 +63,13 @@ class _RecoveryMixin:
         their multipliers then sit at the large penalty ``rho`` and the QP behaves
         like a degenerate LP.  Cascade:
 
-        1. OSQP continued from the last iterate with a relaxed tolerance
+        1. at the iteration cap or solved inaccurate: DAQP from OSQP's iterate
+           (:meth:`_exact`);
+        2. failing that, OSQP continued from the last iterate with a relaxed tolerance
            (``max(1e-4, 10 eps)``) and OSQP's own solution polishing;
-        2. if polishing failed: an exact active-set iteration (:meth:`_refine`).
+        3. if polishing failed: an exact active-set iteration (:meth:`_refine`).
 
-        After a primal-infeasibility verdict only step 2 runs (a few iterations): OSQP
+        After a primal-infeasibility verdict only step 3 runs (a few iterations): OSQP
         stops there with a certificate, and continuing ADMM from the diverging iterate
         re-derived the verdict after thousands of iterations (RSMPC candidates with
         tightened hard rows, ``docs/benchmarks.md``).
@@ -72,6 +89,13 @@ class _RecoveryMixin:
             if ref is not None:
                 return ref[0], ref[1], (_SOLVED, "solved (polished)", iters, t, ref[2], 1)
             return x, y, (status_val, status, iters, t, stats[4], stats[5])
+        if status_val in _FINISH_EXACT:
+            ex = self._exact(x, y)
+            t = solve_time + time.perf_counter() - t0
+            if isinstance(ex, tuple):
+                return ex[0], ex[1], (_SOLVED, "solved (polished)", iters, t, ex[2], 1)
+            if ex == _DAQP_INFEASIBLE:  # a verdict of the exact method: final
+                return x, y, (_PRIMAL_INFEASIBLE[0], _PRIMAL_INFEASIBLE_NAME, iters, t, *stats[4:])
         st = self.osqp_settings
         eps = max(1e-4, 10.0 * float(st["eps_abs"]), 10.0 * float(st["eps_rel"]))
         restore = {k: st[k] for k in ("eps_abs", "eps_rel", "polishing")}
@@ -88,6 +112,54 @@ class _RecoveryMixin:
         if ok2 and s2[0] == _SOLVED:
             return x2, y2, (_SOLVED_INACCURATE, "solved inaccurate", it, t, s2[4], s2[5])
         return x, y, (status_val, status, it, t, stats[4], stats[5])
+
+    def _exact(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | int:
+        """The full QP solved exactly by DAQP, warm-started from OSQP's iterate ``(x, y)``.
+
+        DAQP (dual active-set method, Arnström et al., IEEE TAC 2022) takes the QP
+        ``min 1/2 w'Pw + q'w  s.t.  l <= Aw <= u`` of this call densely (``P``
+        symmetric positive definite on the train MPCs: the slacks carry the quadratic
+        penalty), rows with ``l = u`` as equalities, its initial active set from the
+        signs of OSQP's duals and the rows nearly active at ``x``.  Accepted only when
+        DAQP reports an optimum and the KKT conditions of the full QP hold to
+        :data:`KKT_TOL`: stationarity ``|Pw + q + A'y| <= tol (1 + max|q|)``,
+        feasibility of every row within ``tol (1 + |bound|)`` of its bound and
+        complementarity (a row with ``|y_i| > tol (1 + max|y|)`` lies on its bound
+        ``u_i`` (``y_i > 0``) or ``l_i`` (``y_i < 0``) within ``tol (1 + |bound|)``).  Returns
+        ``(w, y, obj)`` in OSQP's variables and sign convention, or DAQP's exit flag when
+        it found no optimum (-1: primal infeasible) and 0 when the KKT check failed.
+        """
+        Pd = self._P_dense  # upper triangle
+        P = Pd + Pd.T
+        P[np.diag_indices_from(P)] *= 0.5
+        A = self._A_dense
+        q = self._v[self._v_q]
+        lo = np.maximum(self._l, -_BIG)
+        hi = np.minimum(self._u, _BIG)
+        sense = np.where(hi - lo <= 1e-12 * (1.0 + np.abs(hi)), 5, 0).astype(np.int32)
+        w, _, flag, info = daqp.solve(
+            P, q, A, hi, lo, sense, primal_tol=KKT_TOL, primal_start=x, dual_start=y
+        )
+        if flag != _DAQP_OPTIMAL:
+            return int(flag)
+        w = np.asarray(w)
+        lam = np.asarray(info["lam"])
+        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(lam))):
+            return 0
+        Pw = P @ w
+        if np.max(np.abs(Pw + q + A.T @ lam)) > KKT_TOL * (1.0 + np.max(np.abs(q))):
+            return 0
+        Aw = A @ w
+        gap_hi = hi - Aw  # >= -tol_hi where feasible, <= tol_hi where y > 0
+        gap_lo = Aw - lo
+        tol_hi = KKT_TOL * (1.0 + np.abs(hi))
+        tol_lo = KKT_TOL * (1.0 + np.abs(lo))
+        if np.any(gap_hi < -tol_hi) or np.any(gap_lo < -tol_lo):
+            return 0
+        tol_d = KKT_TOL * (1.0 + float(np.max(np.abs(lam), initial=0.0)))
+        if np.any((lam > tol_d) & (gap_hi > tol_hi)) or np.any((lam < -tol_d) & (gap_lo > tol_lo)):
+            return 0
+        return w, lam, float(0.5 * (w @ Pw) + q @ w)
 
     def _refine(
         self, x: np.ndarray, y: np.ndarray, max_iter: int = 20

@@ -1,0 +1,87 @@
+"""The exact finish of a capped OSQP solve (``_RecoveryMixin._exact``, DAQP).
+
+``data/slow_qps.npz`` holds nine QPs recorded from the control steps of
+``Stopping001-v0``, ``Yizhuang-v0`` and ``Section000-v0`` on which OSQP ran 600 to 4000
+ADMM iterations (the longest, a median and the shortest such step per env at the
+constant and random actions of ``benchmarks/bench_envs.py --osqp-tail``): ``P`` (upper
+triangle), ``A``, ``q``, ``l``, ``u`` and the warm start OSQP got.  From OSQP's iterate at
+the iteration cap the finish must meet the full QP's KKT conditions and reach the
+optimum a tightly converged, polished OSQP reaches from scratch.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from train_envs.mpc.osqp_backend import _Backend, osqp_settings_with
+from train_envs.mpc.recovery import KKT_TOL, _RecoveryMixin
+
+_DATA = np.load(Path(__file__).parent / "data" / "slow_qps.npz", allow_pickle=False)
+_N_QP = 9
+
+
+def _qp(k: int) -> dict[str, np.ndarray]:
+    return {f: _DATA[f"{k}_{f}"] for f in ("P", "A", "q", "l", "u", "wx", "wy")}
+
+
+def _backend(qp: dict[str, np.ndarray], **overrides: object) -> _Backend:
+    settings = osqp_settings_with(overrides)
+    P, A = sp.csc_matrix(qp["P"]), sp.csc_matrix(qp["A"])
+    return _Backend(P, qp["q"], A, qp["l"], qp["u"], settings, fast=True)
+
+
+@pytest.mark.parametrize("k", range(_N_QP))
+def test_exact_finish_of_a_capped_solve_is_the_optimum(k):
+    qp = _qp(k)
+    capped = _backend(qp)
+    capped.warm_start(qp["wx"], qp["wy"])
+    x, y, stats = capped.solve()
+    assert stats[0] == 7 and stats[2] == osqp_settings_with(None)["max_iter"]  # at the cap
+
+    host = SimpleNamespace(
+        _P_dense=qp["P"], _A_dense=qp["A"], _v=qp["q"], _v_q=slice(None), _l=qp["l"], _u=qp["u"]
+    )
+    out = _RecoveryMixin._exact(host, x, y)
+    assert isinstance(out, tuple), out
+    w, lam, obj = out
+
+    # the full QP's KKT conditions, checked here independently of the method
+    Pu, A, q, lo, hi = qp["P"], qp["A"], qp["q"], qp["l"], qp["u"]
+    P = Pu + Pu.T - np.diag(np.diag(Pu))
+    assert np.max(np.abs(P @ w + q + A.T @ lam)) <= KKT_TOL * (1 + np.max(np.abs(q)))
+    Aw = A @ w
+    tol_hi, tol_lo = KKT_TOL * (1 + np.abs(hi)), KKT_TOL * (1 + np.abs(lo))
+    assert np.all(Aw <= hi + tol_hi) and np.all(Aw >= lo - tol_lo)
+    on_hi, on_lo = hi - Aw <= tol_hi, Aw - lo <= tol_lo
+    big = np.abs(lam) > KKT_TOL * (1 + np.max(np.abs(lam)))
+    assert np.all(on_hi[big & (lam > 0)]) and np.all(on_lo[big & (lam < 0)])
+    assert obj == pytest.approx(0.5 * w @ P @ w + q @ w, rel=1e-12, abs=1e-12)
+
+    # the optimum a tight OSQP solve reaches from a cold start: the same cost, and the
+    # same point where OSQP's polishing succeeded (where it did not, OSQP's own
+    # stationarity residual, up to 3e-7, is far above the finish's)
+    tight = _backend(qp, eps_abs=1e-10, eps_rel=1e-10, max_iter=400_000, polishing=True)
+    xr, _, sr = tight.solve()
+    assert sr[0] == 1
+    assert obj == pytest.approx(sr[4], rel=1e-8, abs=1e-8)
+    if sr[5] == 1:
+        np.testing.assert_allclose(w, xr, atol=1e-6 * (1 + np.max(np.abs(xr))))
+
+
+def test_exact_finish_reports_an_infeasible_qp():
+    """A QP whose rows cannot all hold gets DAQP's infeasibility flag, not a point."""
+    qp = _qp(4)
+    lo, hi = qp["l"], qp["u"]
+    row = int(np.flatnonzero((hi < 1e29) & (hi > lo))[0])
+    # the same row again, bounded from below above its upper bound
+    A = np.vstack([qp["A"], qp["A"][row]])
+    lo2, hi2 = np.append(lo, hi[row] + 1.0), np.append(hi, 1e30)
+    host = SimpleNamespace(
+        _P_dense=qp["P"], _A_dense=A, _v=qp["q"], _v_q=slice(None), _l=lo2, _u=hi2
+    )
+    assert _RecoveryMixin._exact(host, np.zeros(A.shape[1]), np.zeros(A.shape[0])) == -1
