@@ -71,7 +71,7 @@ class _RecoveryMixin:
 
         After a primal-infeasibility verdict only step 3 runs (a few iterations): OSQP
         stops there with a certificate, and continuing ADMM from the diverging iterate
-        re-derived the verdict after thousands of iterations (RSMPC candidates with
+        only re-derives the verdict after thousands of iterations (RSMPC candidates with
         tightened hard rows, ``docs/benchmarks.md``).
 
         A verified KKT point is reported as ``"solved (polished)"`` (status 1); an
