@@ -126,7 +126,8 @@ def test_no_roll_back_at_start(name):
 @pytest.mark.parametrize("name", ["paper000_disturbance_constant", "paper000_disturbance_harmonic"])
 def test_closed_loop_start_in_wind_does_not_roll_back(name):
     """The wind scenarios' own controller start: the lead car's position never falls
-    below its start (the train used to roll back 0.7 mm at 7 mm/s)."""
+    below its start (a plant that releases the train from rest without counting the
+    wind rolls it back 0.7 mm at 7 mm/s, docs/fidelity.md)."""
     from train_envs.controllers import make_controller
 
     sc = get_scenario(name)
