@@ -15,6 +15,7 @@ the single controller would have.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -179,10 +180,13 @@ class BatchDMC:
         J = np.where(1.0 < J, 1.0, J)
         J = np.where(0.0 > J, 0.0, J)
         trend = self.trend[ix]
+        # expm1 member by member with math.expm1, as the single law: numpy's array expm1
+        # may take a SIMD routine (AVX-512) whose last bits differ from the C library's
+        em1 = math.expm1
+        num = np.array([em1(x) for x in (trend * (1.0 - J)).tolist()])
+        den = np.array([em1(x) for x in trend.tolist()])
         with np.errstate(divide="ignore", invalid="ignore"):
-            f = np.where(
-                np.abs(trend) < 1e-9, 1.0 - J, np.expm1(trend * (1.0 - J)) / np.expm1(trend)
-            )
+            f = np.where(np.abs(trend) < 1e-9, 1.0 - J, num / den)
         lo = self.a_lo[ix]
         return lo + (self.a_hi[ix] - lo) * f
 
