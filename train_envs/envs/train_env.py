@@ -14,6 +14,7 @@ aliases), :mod:`~train_envs.envs.action` (unit box ↔ parameters),
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Mapping
 from typing import Any
 
@@ -141,6 +142,11 @@ class TrainTuningEnv(gym.Env):
         base_config: Mapping[str, Any] | None = None,
     ):
         super().__init__()
+        # one BLAS thread from construction to close (small matrices: threads only cost,
+        # and results do not depend on the machine's core count; see train_envs.mpc.blas)
+        blas = single_thread_blas()
+        blas.acquire()
+        self._blas_release = weakref.finalize(self, blas.release)
         # registered ids pass their settings as ``base_config``; ``config`` goes over them
         self.settings = EnvConfig.resolve(self.default_config(), base_config, config)
         self.config = self.settings.flat()
@@ -282,7 +288,7 @@ class TrainTuningEnv(gym.Env):
     def step(self, action):
         if self._over is not None:
             raise ResetNeeded(f"{type(self).__name__}: {self._over}; call reset()")
-        with single_thread_blas():  # small matrices: BLAS threads only cost (mpc.blas)
+        with single_thread_blas():  # (held since construction; restored on close)
             clipped, params = self._act(action)
             k0 = self._simulate()
         self._clipped_total += clipped
@@ -365,6 +371,7 @@ class TrainTuningEnv(gym.Env):
         return None
 
     def close(self):
+        self._blas_release()  # BLAS threads restored (once; also when garbage-collected)
         if self._fig is not None:
             import matplotlib.pyplot as plt
 

@@ -48,6 +48,21 @@ class _SingleThreadBLAS:
         self._lock = threading.Lock()
 
     def __enter__(self) -> _SingleThreadBLAS:
+        self.acquire()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.release()
+
+    def acquire(self) -> None:
+        """Enter the limit without a ``with`` block (pair with :meth:`release`): an env
+        holds it from its construction to its ``close``, so that its steps do not set and
+        restore the thread count each time."""
         with self._lock:
             if self._depth == 0:
                 if self._libs is None:
@@ -60,14 +75,9 @@ class _SingleThreadBLAS:
                         saved.append((lib, n))
                 self._saved = saved
             self._depth += 1
-        return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def release(self) -> None:
+        """Leave the limit (the outermost release restores the thread counts)."""
         with self._lock:
             self._depth -= 1
             if self._depth == 0:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 
@@ -28,6 +29,8 @@ class PiecewiseLinear:
         self.slope = np.concatenate(([0.0], np.asarray(slope, dtype=float)))
         # Python-list copies for the scalar path (see docs/design/plants.md)
         self._xl, self._y0l, self._sl = self.x.tolist(), self.y0.tolist(), self.slope.tolist()
+        #: the table at one float position (``self(s)`` for a float ``s``, bound once)
+        self.at: Callable[[float], float] = partial(gradient_at, self._xl, self._y0l, self._sl)
 
     @classmethod
     def from_function(

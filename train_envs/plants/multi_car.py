@@ -345,8 +345,9 @@ class TrainPlant:
         else:
             val = float(self._split(u)[0])
         v = abs(v)
-        hi = self.train.max_traction_N(v) * self._share0
-        lo = -self.train.max_brake_N(v) * self._share0
+        env = self.train.envelope  # (TrainParams.max_traction_N / max_brake_N)
+        hi = env.traction_N(v) * self._share0
+        lo = -env.brake_N(v) * self._share0
         out = lo if val < lo else val  # np.maximum(val, lo)
         if out > hi:  # np.minimum(., hi)
             out = hi
@@ -621,7 +622,10 @@ class TrainPlant:
         else:
             w = self._w_now
             F = w if type(w) is float else float(w[0])
-        return self._acc_coef * F + self._nl.single(z[0], z[1], self.t, self.gradient_permil)
+        g = self.gradient_permil
+        if type(g) is PiecewiseLinear:
+            g = g.at  # the table at a float position
+        return self._acc_coef * F + self._nl.single(z[0], z[1], self.t, g)
 
     def _lead_state(self) -> tuple[float, float, float, float]:
         """``(t, s, v, accel)`` of the lead car: the scalar read-outs of one observation."""

@@ -23,12 +23,13 @@ import pandas as pd
 from train_envs.controllers.base import Controller, Observation
 from train_envs.metrics import episode_metrics
 from train_envs.plants.multi_car import _np_sum
-from train_envs.scenarios import Scenario, build_plant
+from train_envs.scenarios import Scenario, build_plant, gradient_lookup
 from train_envs.simulation.supervision import (
     ATP,
     Supervision,
     coupler_excess,
     overrun_m,
+    permitted_speed_fn,
     permitted_speed_mps,
 )
 
@@ -125,6 +126,9 @@ class ClosedLoop:
         self.terminated = False
         self.truncated = False
         self.atp = ATP(self.supervision, sc)
+        # the per-step look-ups, bound once per episode
+        self._limit_at = permitted_speed_fn(sc)
+        self._gradient_at = gradient_lookup(sc.track).at
         self._window = sc.stop_window()
         cp = sc.train.coupler
         self._coupler_lim = (cp.max_force_N, cp.max_deformation_m)
@@ -222,7 +226,7 @@ class ClosedLoop:
         u = np.asarray(u, dtype=float).reshape(-1)
         if not (math.isfinite(u[0]) if u.size == 1 else all(map(math.isfinite, u.tolist()))):
             raise ValueError(f"controller {self.controller.name} returned a non-finite command {u}")
-        limit = permitted_speed_mps(self.scenario, state[1])
+        limit = self._limit_at(state[1])
         brake = self.atp.command(state[2], limit)
         if brake is not None:  # the ATP overrides the command
             u = np.array([brake]) if self.ctx.n_inputs == 1 else brake * self.plant.share
@@ -260,7 +264,7 @@ class ClosedLoop:
             ref.v_ref(t, s),
             ref.s_ref(t),
             limit,
-            sc.gradient_at(s),
+            self._gradient_at(s),
             _np_sum(ul),  # float(np.sum(u))
             u_N,
             p.work_traction_J,

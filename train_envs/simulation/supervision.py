@@ -31,8 +31,10 @@ a float ≥ 0 per step) and the episode's ``safety_cost`` metric are built from 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
+from train_envs.lines.limits import effective_limit_fn
 from train_envs.scenarios import Scenario
 from train_envs.trains import KMH
 
@@ -72,6 +74,12 @@ def permitted_speed_mps(scenario: Scenario, s_m: float) -> float:
     """The permitted speed [m/s] for the train whose head is at ``s_m``: the track's
     speed limit there (the one limit query of the runner, its record and the ATP)."""
     return scenario.speed_limit_at(s_m)
+
+
+def permitted_speed_fn(scenario: Scenario) -> Callable[[float], float]:
+    """:func:`permitted_speed_mps` of ``scenario`` as a function of the head position
+    (the same look-up, bound once: the runner calls it every control step)."""
+    return effective_limit_fn(scenario.track, scenario.train.length_m)
 
 
 def overrun_m(s_m: float, s_stop_m: float | None, window_m: float) -> float:
