@@ -106,6 +106,13 @@ class TrainTuningEnv(gym.Env):
     violation ended it, ``safety_violation`` (what it was). No wall-clock timings: the
     same seed gives the same infos.
 
+    ## Threads
+
+    From its construction to ``close()`` (or its garbage collection) the env holds the
+    process's BLAS libraries at one thread (:func:`train_envs.mpc.blas.single_thread_blas`):
+    its matrices are small, so threads only cost, and the results do not depend on the
+    machine's core count. Close the env to give numpy its threads back.
+
     ## Arguments
 
     ``gymnasium.make(id, config={...}, render_mode=None)``: ``config`` in sections
