@@ -59,7 +59,9 @@ def test_effective_limit_table_is_the_rear_clearance_rule() -> None:
     fn = effective_limit_fn(track, LENGTH_M)
     np.testing.assert_array_equal(fn(s), under)
     assert [fn(float(x)) for x in s] == under.tolist()
-    assert effective_limit_fn(track, 0.0) == track.speed_limit_at
+    point = effective_limit_fn(track, 0.0)  # a point train: the track's own limits
+    np.testing.assert_array_equal(point(s), track.speed_limit_at(s))
+    assert [point(float(x)) for x in s] == [track.speed_limit_at(float(x)) for x in s]
     np.testing.assert_array_equal(effective_limit_at(track, 0.0, s), track.speed_limit_at(s))
     with pytest.raises(ValueError, match="length_m"):
         effective_limit_sections(np.zeros(1), np.ones(1), -1.0)

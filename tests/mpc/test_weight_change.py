@@ -11,6 +11,8 @@ composition; decisions from the same data then agree to the solver's tolerance
 
 from __future__ import annotations
 
+import json
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -143,8 +145,14 @@ def test_rsmpc_closed_forms_after_random_actions_equal_cold_ones():
 
 @pytest.mark.parametrize("n_cars", [1, 6])
 def test_compiled_doubling_equals_reference(n_cars):
-    """The compiled twin of the DARE doubling gives the reference's solution bit for bit
-    on the train MPCs' augmented models over random tunable weights."""
+    """The compiled twin of the DARE doubling gives the reference's solution on the train
+    MPCs' augmented models over random tunable weights: bit for bit where numpy and
+    numba's LAPACK calls run the goldens' BLAS kernel; on another kernel (AVX-512, say)
+    the products round differently and the 6-car model's conditioning (q_dv/q_s up to
+    1e8) amplifies that, so there within 1e-8 of max |H| (the residual test's scale)."""
+    from tests.golden.cases import GOLDEN_FILE, blas_kernel
+
+    same_kernel = blas_kernel() == json.loads(GOLDEN_FILE.read_text()).get("blas")
 
     if not enabled():
         pytest.skip("compiled twins disabled")
@@ -175,7 +183,10 @@ def test_compiled_doubling_equals_reference(n_cars):
         H1, ok1 = ref(Aa, Ba, Qa, np.ascontiguousarray(R), 1e-12)
         H2, ok2 = fast(Aa, Ba, Qa, np.ascontiguousarray(R), 1e-12)
         assert ok1 and ok2
-        np.testing.assert_array_equal(H1, H2)
+        if same_kernel:
+            np.testing.assert_array_equal(H1, H2)
+        else:
+            assert np.abs(H1 - H2).max() <= 1e-8 * np.abs(H1).max()
         # and it is the Riccati solution
         K = np.linalg.solve(R + Ba.T @ H1 @ Ba, Ba.T @ H1 @ Aa)
         res = Aa.T @ H1 @ Aa - Aa.T @ H1 @ Ba @ K + Qa - H1
