@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if json.loads(golden.GOLDEN_FILE.read_text())["blas"] != golden.blas_kernel():
     pytest.skip(
         f"goldens made on BLAS kernel {json.loads(golden.GOLDEN_FILE.read_text())['blas']}, "
-        f"this machine runs {golden.blas_kernel()}: regenerate them here (see golden.cases)",
+        f"this machine runs {golden.blas_kernel()}: see golden.cases to check them here",
         allow_module_level=True,
     )
 STORED = golden.load("compiled")

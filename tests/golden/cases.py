@@ -13,6 +13,12 @@ reported cost ``J`` (a diagnostic column, not a command) is summed in another or
 its compiled twin and differs in the last bit (≤ 6e-16 relative); every other digest is
 the same in both tables.
 
+On a machine whose CPU has AVX-512 (OpenBLAS picks its SkylakeX kernel, numpy its
+AVX-512 loops), the Haswell digests are reproduced with both held back::
+
+    NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" OPENBLAS_CORETYPE=Haswell \
+        python -m tests.golden.cases --check
+
 Regenerate (only in a commit whose purpose is to move numbers, saying why)::
 
     python -m tests.golden.cases --write
