@@ -6,7 +6,7 @@ typical when soft constraints are violated (their multipliers sit at the penalty
 most slacks sit at zero and ADMM's linear rate is slow (``docs/benchmarks.md``).  OSQP
 therefore runs to an iteration cap (``max_iter``, 100 by default); on the statuses
 solved inaccurate and maximum iterations the cascade (:meth:`_RecoveryMixin._rescue`)
-runs (after a primal-infeasibility verdict step 3 only, briefly):
+runs (after a primal-infeasibility verdict steps 1 and 3 only, step 3 briefly):
 
 1. the exact finish (:meth:`_RecoveryMixin._exact`): DAQP, the dual active-set solver
    for small dense QPs of Arnström, Bemporad and Axehill (IEEE TAC 2022), on the full
@@ -52,6 +52,20 @@ _DAQP_INFEASIBLE = -1
 _PRIMAL_INFEASIBLE_NAME = "primal infeasible"
 
 
+def _symmetric_P(host: Any) -> np.ndarray:
+    """The full symmetric ``P`` of ``host._P_dense`` (its upper triangle), made once per
+    ``P``: the assembly replaces ``_P_dense`` on every weight or model change and never
+    writes into it, so the cache is keyed on the array object."""
+    Pd = host._P_dense
+    cached = getattr(host, "_P_sym", None)
+    if cached is not None and cached[0] is Pd:
+        return cached[1]
+    P = Pd + Pd.T
+    P[np.diag_indices_from(P)] *= 0.5
+    host._P_sym = (Pd, P)
+    return P
+
+
 class _RecoveryMixin:
     """Rescue, exact refinement, fallback plan and its evaluation."""
 
@@ -69,10 +83,11 @@ class _RecoveryMixin:
            (``max(1e-4, 10 eps)``) and OSQP's own solution polishing;
         3. if polishing failed: an exact active-set iteration (:meth:`_refine`).
 
-        After a primal-infeasibility verdict only step 3 runs (a few iterations): OSQP
-        stops there with a certificate, and continuing ADMM from the diverging iterate
-        only re-derives the verdict after thousands of iterations (RSMPC candidates with
-        tightened hard rows, ``docs/benchmarks.md``).
+        After a primal-infeasibility verdict only steps 1 and 3 run (step 3 for a few
+        iterations, and only when DAQP neither found an optimum nor confirmed the
+        verdict): OSQP stops there with a certificate, and continuing ADMM from the
+        diverging iterate only re-derives the verdict after thousands of iterations
+        (RSMPC candidates with tightened hard rows, ``docs/benchmarks.md``).
 
         A verified KKT point is reported as ``"solved (polished)"`` (status 1); an
         unpolished relaxed-tolerance solution as ``"solved inaccurate"`` (status 2).
@@ -83,7 +98,15 @@ class _RecoveryMixin:
         t0 = time.perf_counter()
         if status_val in _PRIMAL_INFEASIBLE:
             # OSQP holds a certificate of infeasibility: continuing ADMM cannot find a
-            # solution; only an exact KKT point (a false verdict) would overturn it
+            # solution; only an exact KKT point (a false verdict) would overturn it.
+            # DAQP settles it first (cheaper than the refinement on these QPs)
+            ex = self._exact(x, y)
+            if isinstance(ex, tuple):
+                t = solve_time + time.perf_counter() - t0
+                return ex[0], ex[1], (_SOLVED, "solved (polished)", iters, t, ex[2], 1)
+            if ex == _DAQP_INFEASIBLE:
+                t = solve_time + time.perf_counter() - t0
+                return x, y, (status_val, status, iters, t, stats[4], stats[5])
             ref = self._refine(x, y, _INFEASIBLE_REFINE)
             t = solve_time + time.perf_counter() - t0
             if ref is not None:
@@ -129,9 +152,7 @@ class _RecoveryMixin:
         ``(w, y, obj)`` in OSQP's variables and sign convention, or DAQP's exit flag when
         it found no optimum (-1: primal infeasible) and 0 when the KKT check failed.
         """
-        Pd = self._P_dense  # upper triangle
-        P = Pd + Pd.T
-        P[np.diag_indices_from(P)] *= 0.5
+        P = _symmetric_P(self)
         A = self._A_dense
         q = self._v[self._v_q]
         lo = np.maximum(self._l, -_BIG)
