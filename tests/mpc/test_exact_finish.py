@@ -134,3 +134,32 @@ def test_infeasibility_verdict_confirmed_by_daqp_skips_the_refinement():
     stats = (3, "primal infeasible", 40, 1e-4, 0.0, 0)
     _, _, out = host._rescue(np.zeros(A.shape[1]), np.zeros(A.shape[0]), stats)
     assert out[:3] == (3, "primal infeasible", 40) and out[3] >= 1e-4
+
+
+def test_sparse_form_active_set_finish_reaches_daqps_optimum():
+    """In the sparse form the finish first solves the KKT system of the active set
+    OSQP's iterate names (one sparse LU); where it is accepted it is the point DAQP
+    finds from the same iterate, to the KKT tolerance."""
+    accepted = 0
+    for seed in range(12):
+        case = random_instance(seed)
+        inst = dict(case["inst"], form="sparse", osqp_settings={"max_iter": 10})
+        data = case["data"]
+        mpc = LinearMPC(**inst)
+        mpc.solve(data["x0"], data["u_prev"], data["y_ref"], d=data["d"])
+        x, y, _ = mpc._backend.solve()  # an iterate of this call's QP, 10 iterations on
+        mpc._sparse = False
+        ref = mpc._exact(x, y)  # DAQP
+        mpc._sparse = True
+        out = mpc._exact(x, y)
+        assert isinstance(ref, tuple) and isinstance(out, tuple)
+        w, lam, obj = out
+        scale = 1.0 + np.max(np.abs(ref[0]))
+        np.testing.assert_allclose(w, ref[0], atol=1e-6 * scale)
+        assert obj == pytest.approx(ref[2], rel=1e-8, abs=1e-8)
+        P = _symmetric_P(mpc)
+        lo, hi = np.maximum(mpc._l, -1e30), np.minimum(mpc._u, 1e30)
+        eq = hi - lo <= 1e-12 * (1.0 + np.abs(hi))
+        A, q = mpc._A_dense, mpc._v[mpc._v_q]
+        accepted += mpc._active_set_kkt(x, y, P, A, q, lo, hi, eq) is not None
+    assert accepted >= 3  # the others: a wrong guess of the active set, DAQP finishes
