@@ -17,9 +17,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from test_mpc_core import random_instance
 
+from train_envs.mpc import LinearMPC
 from train_envs.mpc.osqp_backend import _Backend, osqp_settings_with
-from train_envs.mpc.recovery import KKT_TOL, _RecoveryMixin
+from train_envs.mpc.recovery import KKT_TOL, _RecoveryMixin, _symmetric_P
 
 _DATA = np.load(Path(__file__).parent / "data" / "slow_qps.npz", allow_pickle=False)
 _N_QP = 9
@@ -85,3 +87,79 @@ def test_exact_finish_reports_an_infeasible_qp():
         _P_dense=qp["P"], _A_dense=A, _v=qp["q"], _v_q=slice(None), _l=lo2, _u=hi2
     )
     assert _RecoveryMixin._exact(host, np.zeros(A.shape[1]), np.zeros(A.shape[0])) == -1
+
+
+def test_symmetric_P_follows_weight_and_model_changes():
+    """The finish's full ``P`` is made once per ``P`` and follows every weight and
+    model change (the assembly replaces ``_P_dense``, never writes into it)."""
+    case = random_instance(3)
+    inst = case["inst"]
+    mpc = LinearMPC(**inst)
+
+    def full(Pu: np.ndarray) -> np.ndarray:
+        return Pu + Pu.T - np.diag(np.diag(Pu))
+
+    P0 = _symmetric_P(mpc)
+    np.testing.assert_array_equal(P0, full(mpc._P_dense))
+    assert _symmetric_P(mpc) is P0  # cached
+    mpc.set_weights(Q=inst["Q"] * 3.0, R=inst["R"] * 0.5)
+    P1 = _symmetric_P(mpc)
+    np.testing.assert_array_equal(P1, full(mpc._P_dense))
+    assert not np.array_equal(P1, P0)
+    mpc.set_model(inst["A"] * 0.99, inst["B"])
+    np.testing.assert_array_equal(_symmetric_P(mpc), full(mpc._P_dense))
+
+
+class _NoRefine(_RecoveryMixin):
+    def _refine(self, x, y, max_iter=20):
+        raise AssertionError("the refinement ran after DAQP's verdict")
+
+
+def test_infeasibility_verdict_confirmed_by_daqp_skips_the_refinement():
+    """After OSQP's primal-infeasibility verdict DAQP decides first; its verdict is
+    final and reported with OSQP's status."""
+    qp = _qp(4)
+    lo, hi = qp["l"], qp["u"]
+    row = int(np.flatnonzero((hi < 1e29) & (hi > lo))[0])
+    A = np.vstack([qp["A"], qp["A"][row]])
+    host = _NoRefine()
+    host.__dict__.update(
+        _P_dense=qp["P"],
+        _A_dense=A,
+        _v=qp["q"],
+        _v_q=slice(None),
+        _l=np.append(lo, hi[row] + 1.0),
+        _u=np.append(hi, 1e30),
+    )
+    stats = (3, "primal infeasible", 40, 1e-4, 0.0, 0)
+    _, _, out = host._rescue(np.zeros(A.shape[1]), np.zeros(A.shape[0]), stats)
+    assert out[:3] == (3, "primal infeasible", 40) and out[3] >= 1e-4
+
+
+def test_sparse_form_active_set_finish_reaches_daqps_optimum():
+    """In the sparse form the finish first solves the KKT system of the active set
+    OSQP's iterate names (one sparse LU); where it is accepted it is the point DAQP
+    finds from the same iterate, to the KKT tolerance."""
+    accepted = 0
+    for seed in range(12):
+        case = random_instance(seed)
+        inst = dict(case["inst"], form="sparse", osqp_settings={"max_iter": 10})
+        data = case["data"]
+        mpc = LinearMPC(**inst)
+        mpc.solve(data["x0"], data["u_prev"], data["y_ref"], d=data["d"])
+        x, y, _ = mpc._backend.solve()  # an iterate of this call's QP, 10 iterations on
+        mpc._sparse = False
+        ref = mpc._exact(x, y)  # DAQP
+        mpc._sparse = True
+        out = mpc._exact(x, y)
+        assert isinstance(ref, tuple) and isinstance(out, tuple)
+        w, lam, obj = out
+        scale = 1.0 + np.max(np.abs(ref[0]))
+        np.testing.assert_allclose(w, ref[0], atol=1e-6 * scale)
+        assert obj == pytest.approx(ref[2], rel=1e-8, abs=1e-8)
+        P = _symmetric_P(mpc)
+        lo, hi = np.maximum(mpc._l, -1e30), np.minimum(mpc._u, 1e30)
+        eq = hi - lo <= 1e-12 * (1.0 + np.abs(hi))
+        A, q = mpc._A_dense, mpc._v[mpc._v_q]
+        accepted += mpc._active_set_kkt(x, y, P, A, q, lo, hi, eq) is not None
+    assert accepted >= 3  # the others: a wrong guess of the active set, DAQP finishes

@@ -6,12 +6,13 @@ typical when soft constraints are violated (their multipliers sit at the penalty
 most slacks sit at zero and ADMM's linear rate is slow (``docs/benchmarks.md``).  OSQP
 therefore runs to an iteration cap (``max_iter``, 100 by default); on the statuses
 solved inaccurate and maximum iterations the cascade (:meth:`_RecoveryMixin._rescue`)
-runs (after a primal-infeasibility verdict step 3 only, briefly):
+runs (after a primal-infeasibility verdict steps 1 and 3 only, step 3 briefly):
 
 1. the exact finish (:meth:`_RecoveryMixin._exact`): DAQP, the dual active-set solver
    for small dense QPs of Arnström, Bemporad and Axehill (IEEE TAC 2022), on the full
-   QP, warm-started from OSQP's iterate, accepted only when the full QP's KKT
-   conditions hold to :data:`KKT_TOL`;
+   QP, warm-started from OSQP's iterate (in the sparse form first the KKT system of
+   the active set the iterate names, one sparse LU), accepted only when the full QP's
+   KKT conditions hold to :data:`KKT_TOL`;
 2. OSQP continued from the last iterate with tolerance :math:`\max(10^{-4}, 10\epsilon)`
    and OSQP's polishing;
 3. failing that, an exact primal-dual active-set iteration (semismooth Newton) on the
@@ -34,6 +35,8 @@ from typing import Any
 
 import daqp
 import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from train_envs.mpc.osqp_backend import _BIG, _RESCUE, _SOLVED, _SOLVED_INACCURATE, _Stats
 from train_envs.mpc.solution import MPCSolution
@@ -50,6 +53,50 @@ KKT_TOL = 1e-9
 _DAQP_OPTIMAL = 1
 _DAQP_INFEASIBLE = -1
 _PRIMAL_INFEASIBLE_NAME = "primal infeasible"
+
+
+def _symmetric_P(host: Any) -> np.ndarray:
+    """The full symmetric ``P`` of ``host._P_dense`` (its upper triangle), made once per
+    ``P``: the assembly replaces ``_P_dense`` on every weight or model change and never
+    writes into it, so the cache is keyed on the array object."""
+    Pd = host._P_dense
+    cached = getattr(host, "_P_sym", None)
+    if cached is not None and cached[0] is Pd:
+        return cached[1]
+    P = Pd + Pd.T
+    P[np.diag_indices_from(P)] *= 0.5
+    host._P_sym = (Pd, P)
+    return P
+
+
+def _kkt_point(
+    P: np.ndarray,
+    A: np.ndarray,
+    q: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    w: np.ndarray,
+    lam: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """``(w, lam, obj)`` when ``(w, lam)`` meets the full QP's KKT conditions to
+    :data:`KKT_TOL` (stationarity, feasibility, complementarity: see
+    :meth:`_RecoveryMixin._exact`), else None."""
+    if not (np.all(np.isfinite(w)) and np.all(np.isfinite(lam))):
+        return None
+    Pw = P @ w
+    if np.max(np.abs(Pw + q + A.T @ lam)) > KKT_TOL * (1.0 + np.max(np.abs(q))):
+        return None
+    Aw = A @ w
+    gap_hi = hi - Aw  # >= -tol_hi where feasible, <= tol_hi where y > 0
+    gap_lo = Aw - lo
+    tol_hi = KKT_TOL * (1.0 + np.abs(hi))
+    tol_lo = KKT_TOL * (1.0 + np.abs(lo))
+    if np.any(gap_hi < -tol_hi) or np.any(gap_lo < -tol_lo):
+        return None
+    tol_d = KKT_TOL * (1.0 + float(np.max(np.abs(lam), initial=0.0)))
+    if np.any((lam > tol_d) & (gap_hi > tol_hi)) or np.any((lam < -tol_d) & (gap_lo > tol_lo)):
+        return None
+    return w, lam, float(0.5 * (w @ Pw) + q @ w)
 
 
 class _RecoveryMixin:
@@ -69,10 +116,11 @@ class _RecoveryMixin:
            (``max(1e-4, 10 eps)``) and OSQP's own solution polishing;
         3. if polishing failed: an exact active-set iteration (:meth:`_refine`).
 
-        After a primal-infeasibility verdict only step 3 runs (a few iterations): OSQP
-        stops there with a certificate, and continuing ADMM from the diverging iterate
-        only re-derives the verdict after thousands of iterations (RSMPC candidates with
-        tightened hard rows, ``docs/benchmarks.md``).
+        After a primal-infeasibility verdict only steps 1 and 3 run (step 3 for a few
+        iterations, and only when DAQP neither found an optimum nor confirmed the
+        verdict): OSQP stops there with a certificate, and continuing ADMM from the
+        diverging iterate only re-derives the verdict after thousands of iterations
+        (RSMPC candidates with tightened hard rows, ``docs/benchmarks.md``).
 
         A verified KKT point is reported as ``"solved (polished)"`` (status 1); an
         unpolished relaxed-tolerance solution as ``"solved inaccurate"`` (status 2).
@@ -83,7 +131,15 @@ class _RecoveryMixin:
         t0 = time.perf_counter()
         if status_val in _PRIMAL_INFEASIBLE:
             # OSQP holds a certificate of infeasibility: continuing ADMM cannot find a
-            # solution; only an exact KKT point (a false verdict) would overturn it
+            # solution; only an exact KKT point (a false verdict) would overturn it.
+            # DAQP settles it first (cheaper than the refinement on these QPs)
+            ex = self._exact(x, y)
+            if isinstance(ex, tuple):
+                t = solve_time + time.perf_counter() - t0
+                return ex[0], ex[1], (_SOLVED, "solved (polished)", iters, t, ex[2], 1)
+            if ex == _DAQP_INFEASIBLE:
+                t = solve_time + time.perf_counter() - t0
+                return x, y, (status_val, status, iters, t, stats[4], stats[5])
             ref = self._refine(x, y, _INFEASIBLE_REFINE)
             t = solve_time + time.perf_counter() - t0
             if ref is not None:
@@ -120,7 +176,10 @@ class _RecoveryMixin:
         ``min 1/2 w'Pw + q'w  s.t.  l <= Aw <= u`` of this call densely (``P``
         symmetric positive definite on the train MPCs: the slacks carry the quadratic
         penalty), rows with ``l = u`` as equalities, its initial active set from the
-        signs of OSQP's duals and the rows nearly active at ``x``.  Accepted only when
+        signs of OSQP's duals and the rows nearly active at ``x``.  In the sparse form
+        the active set OSQP's iterate names is tried first
+        (:meth:`_active_set_kkt`: DAQP's dense setup dominates on those larger QPs);
+        DAQP runs when that point fails the checks below.  Accepted only when
         DAQP reports an optimum and the KKT conditions of the full QP hold to
         :data:`KKT_TOL`: stationarity ``|Pw + q + A'y| <= tol (1 + max|q|)``,
         feasibility of every row within ``tol (1 + |bound|)`` of its bound and
@@ -129,14 +188,17 @@ class _RecoveryMixin:
         ``(w, y, obj)`` in OSQP's variables and sign convention, or DAQP's exit flag when
         it found no optimum (-1: primal infeasible) and 0 when the KKT check failed.
         """
-        Pd = self._P_dense  # upper triangle
-        P = Pd + Pd.T
-        P[np.diag_indices_from(P)] *= 0.5
+        P = _symmetric_P(self)
         A = self._A_dense
         q = self._v[self._v_q]
         lo = np.maximum(self._l, -_BIG)
         hi = np.minimum(self._u, _BIG)
-        sense = np.where(hi - lo <= 1e-12 * (1.0 + np.abs(hi)), 5, 0).astype(np.int32)
+        eq = hi - lo <= 1e-12 * (1.0 + np.abs(hi))
+        if getattr(self, "_sparse", False):
+            out = self._active_set_kkt(x, y, P, A, q, lo, hi, eq)
+            if out is not None:
+                return out
+        sense = np.where(eq, 5, 0).astype(np.int32)
         w, _, flag, info = daqp.solve(
             P, q, A, hi, lo, sense, primal_tol=KKT_TOL, primal_start=x, dual_start=y
         )
@@ -144,22 +206,53 @@ class _RecoveryMixin:
             return int(flag)
         w = np.asarray(w)
         lam = np.asarray(info["lam"])
-        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(lam))):
-            return 0
-        Pw = P @ w
-        if np.max(np.abs(Pw + q + A.T @ lam)) > KKT_TOL * (1.0 + np.max(np.abs(q))):
-            return 0
-        Aw = A @ w
-        gap_hi = hi - Aw  # >= -tol_hi where feasible, <= tol_hi where y > 0
-        gap_lo = Aw - lo
-        tol_hi = KKT_TOL * (1.0 + np.abs(hi))
-        tol_lo = KKT_TOL * (1.0 + np.abs(lo))
-        if np.any(gap_hi < -tol_hi) or np.any(gap_lo < -tol_lo):
-            return 0
-        tol_d = KKT_TOL * (1.0 + float(np.max(np.abs(lam), initial=0.0)))
-        if np.any((lam > tol_d) & (gap_hi > tol_hi)) or np.any((lam < -tol_d) & (gap_lo > tol_lo)):
-            return 0
-        return w, lam, float(0.5 * (w @ Pw) + q @ w)
+        out = _kkt_point(P, A, q, lo, hi, w, lam)
+        return 0 if out is None else out
+
+    def _active_set_kkt(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        P: np.ndarray,
+        A: np.ndarray,
+        q: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        eq: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """Sparse form: the equality-constrained QP of the active set OSQP's iterate
+        names, solved by one sparse LU of its KKT system (DAQP works densely).
+
+        Rows with ``l = u`` and rows OSQP's polishing rule marks active (``u_i - a_i <
+        y_i`` on the upper, ``a_i - l_i < -y_i`` on the lower bound, ``a = Ax``) hold
+        with equality: ``[P A_a'; A_a 0] [w; y_a] = [-q; b_a]``.  Accepted under the
+        same KKT conditions as DAQP's point (:func:`_kkt_point`); None otherwise.
+        """
+        Ax = A @ x
+        up = (hi - Ax < y) | eq
+        act = np.flatnonzero(up | (Ax - lo < -y))
+        n, k = P.shape[0], act.size
+        pos = np.full(A.shape[0], -1)
+        pos[act] = np.arange(n, n + k)
+        pr, pc = self._P_rows, self._P_cols
+        ar, ac = self._A_rows, self._A_cols
+        on = pos[ar] >= 0
+        off = pr != pc
+        ka, kc = pos[ar[on]], ac[on]
+        rows = np.concatenate([pr, pc[off], ka, kc])
+        cols = np.concatenate([pc, pr[off], kc, ka])
+        pv, av = P[pr, pc], A[ar[on], kc]
+        vals = np.concatenate([pv, pv[off], av, av])
+        nz = vals != 0.0  # explicit zeros of the fixed pattern upset SuperLU
+        K = sp.csc_matrix((vals[nz], (rows[nz], cols[nz])), shape=(n + k, n + k))
+        rhs = np.concatenate([-q, np.where(up[act], hi[act], lo[act])])
+        try:
+            sol = spla.splu(K).solve(rhs)
+        except RuntimeError:  # singular: dependent active rows
+            return None
+        lam = np.zeros(A.shape[0])
+        lam[act] = sol[n:]
+        return _kkt_point(P, A, q, lo, hi, sol[:n], lam)
 
     def _refine(
         self, x: np.ndarray, y: np.ndarray, max_iter: int = 20
