@@ -460,9 +460,19 @@ class _AssemblyMixin:
         return q
 
     def _push_matrices(self) -> None:
-        Px = self._P_dense[self._P_rows, self._P_cols]
-        Ax = self._A_dense[self._A_rows, self._A_cols]
-        self._backend.update_mat(Px, Ax)
+        """Mark OSQP's matrix values stale: they are sent (and OSQP's KKT system
+        refactorised) by :meth:`_flush_matrices` before the next OSQP call, so weight
+        changes between steps that never reach OSQP cost no refactorisation."""
+        self._mat_dirty = True
+
+    def _flush_matrices(self) -> None:
+        """Send the current ``P`` and ``A`` values to OSQP if they changed since the last
+        call (OSQP keeps no state that depends on when they arrive before a solve)."""
+        if self._mat_dirty:
+            self._mat_dirty = False
+            Px = self._P_dense[self._P_rows, self._P_cols]
+            Ax = self._A_dense[self._A_rows, self._A_cols]
+            self._backend.update_mat(Px, Ax)
 
     def set_weights(
         self,
