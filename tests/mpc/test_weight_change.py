@@ -117,7 +117,12 @@ def _qps(ctrl) -> list[LinearMPC]:
     """The controller's QPs with its current parameters (tube MPCs: one per hold)."""
     problems = getattr(ctrl, "_problems", None)
     if problems is not None:
-        return [ctrl._problem(M).mpc for M in sorted(problems)]
+        out = []
+        for M in sorted(problems):
+            prob = ctrl._problem(M)
+            ctrl._sync_qp(prob)  # the core gets the weights when it next solves
+            out.append(prob.mpc)
+        return out
     return [ctrl._mpc]
 
 
@@ -163,8 +168,7 @@ def test_rsmpc_closed_forms_after_random_actions_equal_cold_ones():
             warm = ctrl._explicit(prob)
             if warm is False:
                 continue
-            prob.theta_fold = None
-            prob.mpc._unc_cache = None
+            prob.frames = None
             cold = make_closed_form(prob, ctrl._layout, ctrl._s_max)
             for k in ("cols", "T", "b"):
                 np.testing.assert_array_equal(getattr(warm, k), getattr(cold, k), err_msg=k)

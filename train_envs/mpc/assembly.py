@@ -118,6 +118,28 @@ class _Structure:
     Cpinv: np.ndarray
 
 
+@dataclass(frozen=True)
+class ResidualMaps:
+    """The weight-independent maps of a condensed :class:`LinearMPC` (decision ``z``,
+    data ``θ``): the cost's residuals ``e = Ez z + Eth θ`` in the order of ``W``, its
+    row ``blocks`` (``"Q"``: stage-major ``(Np, p)``, ``"R"``: ``(Nc, m)``, ``"S"``:
+    ``(Np, m)``, ``"P"``; absent blocks omitted), the predictions ``vec(X) = Sx z + Xth
+    θ``, ``vec(Y) = Sy z + Yth θ``, the plan ``vec(U) = Tz z + Uth θ`` and ``θ``'s
+    ``slots``.  A caller that knows how its weights vary weights these itself."""
+
+    Ez: np.ndarray
+    Eth: np.ndarray
+    blocks: dict[str, slice]
+    Sx: np.ndarray
+    Xth: np.ndarray
+    Sy: np.ndarray
+    Yth: np.ndarray
+    Tz: np.ndarray
+    Uth: np.ndarray
+    slots: dict[str, slice]
+    ntheta: int
+
+
 class _AssemblyMixin:
     """``P``, ``q``, ``A`` and the per-step data map from the model and the weights."""
 
@@ -453,6 +475,35 @@ class _AssemblyMixin:
         if self._lw_ez is None:
             self._lw_ez = self._Lw @ self._condensed_src[0]
         return self._lw_ez
+
+    def residual_maps(self) -> ResidualMaps:
+        """The weight-independent maps of the cost and the predictions (condensed form;
+        :class:`ResidualMaps`), made once per model."""
+        if self._sparse:
+            raise ValueError("residual_maps() needs the condensed form")
+        S_ = self._structure()
+        sizes = [("Q", self.Np * self.p), ("R", self._nz)]
+        if self._S is not None:
+            sizes.append(("S", self.Np * self.m))
+        if self._P is not None:
+            sizes.append(("P", self.n if self.terminal == "state" else self.p))
+        blocks, r = {}, 0
+        for name, k in sizes:
+            blocks[name] = slice(r, r + k)
+            r += k
+        return ResidualMaps(
+            Ez=self._Ez,
+            Eth=self._Eth,
+            blocks=blocks,
+            Sx=S_.Sx,
+            Xth=S_.Xth,
+            Sy=S_.Sy,
+            Yth=S_.Yth,
+            Tz=self._Tz_c,
+            Uth=S_.Uth[: self._nz],
+            slots=dict(self._slots),
+            ntheta=self._ntheta,
+        )
 
     def _q_init(self) -> np.ndarray:
         q = np.zeros(self._n_var)
