@@ -118,6 +118,28 @@ class _Structure:
     Cpinv: np.ndarray
 
 
+@dataclass(frozen=True)
+class ResidualMaps:
+    """The weight-independent maps of a condensed :class:`LinearMPC` (decision ``z``,
+    data ``θ``): the cost's residuals ``e = Ez z + Eth θ`` in the order of ``W``, its
+    row ``blocks`` (``"Q"``: stage-major ``(Np, p)``, ``"R"``: ``(Nc, m)``, ``"S"``:
+    ``(Np, m)``, ``"P"``; absent blocks omitted), the predictions ``vec(X) = Sx z + Xth
+    θ``, ``vec(Y) = Sy z + Yth θ``, the plan ``vec(U) = Tz z + Uth θ`` and ``θ``'s
+    ``slots``.  A caller that knows how its weights vary weights these itself."""
+
+    Ez: np.ndarray
+    Eth: np.ndarray
+    blocks: dict[str, slice]
+    Sx: np.ndarray
+    Xth: np.ndarray
+    Sy: np.ndarray
+    Yth: np.ndarray
+    Tz: np.ndarray
+    Uth: np.ndarray
+    slots: dict[str, slice]
+    ntheta: int
+
+
 class _AssemblyMixin:
     """``P``, ``q``, ``A`` and the per-step data map from the model and the weights."""
 
@@ -454,15 +476,54 @@ class _AssemblyMixin:
             self._lw_ez = self._Lw @ self._condensed_src[0]
         return self._lw_ez
 
+    def residual_maps(self) -> ResidualMaps:
+        """The weight-independent maps of the cost and the predictions (condensed form;
+        :class:`ResidualMaps`), made once per model."""
+        if self._sparse:
+            raise ValueError("residual_maps() needs the condensed form")
+        S_ = self._structure()
+        sizes = [("Q", self.Np * self.p), ("R", self._nz)]
+        if self._S is not None:
+            sizes.append(("S", self.Np * self.m))
+        if self._P is not None:
+            sizes.append(("P", self.n if self.terminal == "state" else self.p))
+        blocks, r = {}, 0
+        for name, k in sizes:
+            blocks[name] = slice(r, r + k)
+            r += k
+        return ResidualMaps(
+            Ez=self._Ez,
+            Eth=self._Eth,
+            blocks=blocks,
+            Sx=S_.Sx,
+            Xth=S_.Xth,
+            Sy=S_.Sy,
+            Yth=S_.Yth,
+            Tz=self._Tz_c,
+            Uth=S_.Uth[: self._nz],
+            slots=dict(self._slots),
+            ntheta=self._ntheta,
+        )
+
     def _q_init(self) -> np.ndarray:
         q = np.zeros(self._n_var)
         q[self._col_slack :] = self._rho_s
         return q
 
     def _push_matrices(self) -> None:
-        Px = self._P_dense[self._P_rows, self._P_cols]
-        Ax = self._A_dense[self._A_rows, self._A_cols]
-        self._backend.update_mat(Px, Ax)
+        """Mark OSQP's matrix values stale: they are sent (and OSQP's KKT system
+        refactorised) by :meth:`_flush_matrices` before the next OSQP call, so weight
+        changes between steps that never reach OSQP cost no refactorisation."""
+        self._mat_dirty = True
+
+    def _flush_matrices(self) -> None:
+        """Send the current ``P`` and ``A`` values to OSQP if they changed since the last
+        call (OSQP keeps no state that depends on when they arrive before a solve)."""
+        if self._mat_dirty:
+            self._mat_dirty = False
+            Px = self._P_dense[self._P_rows, self._P_cols]
+            Ax = self._A_dense[self._A_rows, self._A_cols]
+            self._backend.update_mat(Px, Ax)
 
     def set_weights(
         self,

@@ -261,6 +261,7 @@ class LinearMPC(
             shape=(self._n_row, self._n_var),
         )
         self._backend = _Backend(P0, self._q_init(), A0, self._l, self._u, settings, fast_osqp)
+        self._mat_dirty = False  # P, A values changed since OSQP last got them
         self._unc_first = bool(unconstrained_first) and not self._sparse
         self.reset()
 
@@ -299,6 +300,7 @@ class LinearMPC(
         (costs one KKT refactorisation).
         """
         self.reset()
+        self._flush_matrices()
         self._backend.reset(self._n_var, self._n_row)
 
     def solve(
@@ -391,6 +393,7 @@ class LinearMPC(
         # OSQP -----------------------------------------------------------------------
         try:
             ws_x, ws_y = self._warm_start()
+            self._flush_matrices()
             res = self._backend.step(v[self._v_q], self._l, self._u, ws_x, ws_y)
             if res is None:  # OSQP rejected the vector update
                 return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)

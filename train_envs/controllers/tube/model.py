@@ -48,6 +48,7 @@ __all__ = [
     "ROW_U",
     "ROW_V",
     "StoppingModel",
+    "core_terminal_basis",
     "TubeFeedback",
     "stopping_model",
     "terminal_weight",
@@ -185,6 +186,33 @@ def terminal_weight(A_cl: np.ndarray, K: np.ndarray, Qx: np.ndarray, r: float) -
 
 
 _LYAPUNOV: dict[tuple, LyapunovSolver] = {}  # per loop A_cl: its factorised linear system
+_CORE_BASIS: dict[tuple, np.ndarray] = {}
+
+
+def core_terminal_basis(A_cl: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """The QP core's terminal weight ``P_c = A_clᵀ P A_cl + r KᵀK`` (``= P − Q_ξ``, ``P``
+    of :func:`terminal_weight` for ``Q_ξ = diag(q_s, q_v, 0, 0)``) is linear in ``(q_s,
+    q_v, r)`` for a fixed loop: returns the three ``(4, 4)`` pieces ``B`` (symmetric,
+    read-only; cached per loop) with ``P_c = q_s B_0 + q_v B_1 + r B_2``."""
+    K = np.asarray(K, float).reshape(1, -1)
+    A = np.asarray(A_cl, float)
+    key = (A.shape, A.tobytes(), K.tobytes())
+    hit = _CORE_BASIS.get(key)
+    if hit is not None:
+        return hit
+    n = A.shape[0]
+    KtK = K.T @ K
+    units = [np.zeros((n, n)), np.zeros((n, n)), KtK]
+    units[0][0, 0] = 1.0
+    units[1][1, 1] = 1.0
+    out = np.empty((3, n, n))
+    for j, Qj in enumerate(units):
+        P = terminal_weight(A, K, Qj, 0.0)
+        Pc = A.T @ P @ A + (KtK if j == 2 else 0.0)
+        out[j] = 0.5 * (Pc + Pc.T)
+    out.setflags(write=False)
+    _cache_put(_CORE_BASIS, key, out)
+    return out
 
 
 # ------------------------------------------------------------------------ tightening

@@ -88,7 +88,14 @@ class TubeProblem:
     buffers: tuple | None = None  # per-step index constants and work arrays of solve
     du: np.ndarray | None = None  # per-stage increment bound (0: pinned, a held stage)
     explicit: ClosedForm | bool | None = None  # closed form (None: not made, False: n/a)
-    theta_fold: tuple | None = None  # weight-independent gather of the closed form's θ
+    held: tuple[np.ndarray, np.ndarray] | None = None  # stages weighted 1/β: Q, increments
+    basis: np.ndarray | None = None  # (3, 4, 4) pieces of the core's terminal weight
+    coef: np.ndarray | None = None  # the weights' coefficients of the closed form's pieces
+    P_core: np.ndarray | None = None  # the core's terminal weight for these coefficients
+    frames: Any = None  # (layout, basis, {pinned pattern: closed_form.Frame})
+    qp_stale: bool = False  # the core's weights lag behind coef (set before it solves)
+    cf_bounds: np.ndarray | None = None  # the closed form's row bounds for this w̄
+    bounds_stale: bool = False  # the core's base bounds lag behind du, y_min (sync_bounds)
 
     def set_disturbance_bound(self, wb: float, lim: Limits, st: TubeSettings) -> None:
         """Tighten the bounds for the disturbance bound ``w̄ = wb`` (module docstring)."""
@@ -99,7 +106,6 @@ class TubeProblem:
         du = np.maximum(rate - wb * tight[:Np, ROW_DU], 0.0)
         du[0] = rate
         du[1:M] = 0.0
-        self.mpc.set_base_bounds(u_min=-du.reshape(Np, 1), u_max=du.reshape(Np, 1))
         self.du = du
         ts = tight[1 : Np + 1]
         y_min = np.empty((Np, 3))
@@ -117,13 +123,29 @@ class TubeProblem:
             mid = 0.5 * (y_min[bad, 2] + y_max[bad, 2])
             y_min[bad, 2] = y_max[bad, 2] = mid
         self.y_min, self.y_max = y_min, y_max
-        self.mpc.set_base_bounds(y_min=y_min)
+        self.bounds_stale = True  # the core gets them before it solves (sync_bounds)
         self.tau_v = wb * ts[:, ROW_V]
         steps = np.asarray(st.terminal_steps, dtype=int)
         rows = (ROW_S, ROW_V) if st.terminal_speed_rows else (ROW_S,)
         self.tau_term = np.concatenate([wb * tight[Np + steps, r] for r in rows])
+        # the closed form's bounds (its rows "row <= b", .closed_form.make_closed_form)
+        nt = steps.size
+        b = [du, du, y_max[:, 0], -y_min[:, 1], -self.tau_v, -y_min[:, 2], y_max[:, 2]]
+        if self.H_N.shape[0]:
+            s_t = np.concatenate([np.full(nt, lim.s_max), np.zeros(self.H_N.shape[0] - nt)])
+            b.append(s_t - self.tau_term)
+        self.cf_bounds = np.concatenate(b)
         self.w_bar = wb
         self.explicit = None
+
+    def sync_bounds(self) -> None:
+        """Give the QP core the tightened base bounds of :meth:`set_disturbance_bound`
+        (deferred to its next use: most steps are decided in closed form)."""
+        if self.bounds_stale:
+            du = self.du.reshape(self.Np, 1)
+            self.mpc.set_base_bounds(u_min=-du, u_max=du)
+            self.mpc.set_base_bounds(y_min=self.y_min)
+            self.bounds_stale = False
 
     def work(self, layout: StageLayout) -> tuple:
         """Per-step index constants and work arrays (made on first use)."""
@@ -144,7 +166,8 @@ class TubeProblem:
     def lower_bound(self, layout: StageLayout, data: Mapping[str, Any]) -> float | None:
         """A lower bound on :meth:`solve`'s cost for the same data, exact when the
         problem's unconstrained optimum (held increments pinned) is feasible; None when
-        not available (:meth:`LinearMPC.unconstrained_cost`).  No bounds are set."""
+        not available (:meth:`LinearMPC.unconstrained_cost`).  No per-step bounds are set."""
+        self.sync_bounds()
         _, idx, y_ref, _, _, _, d_idx = self.work(layout)
         xs = data["xs"]
         y_ref[:, :2] = xs[idx, :2]
@@ -158,6 +181,7 @@ class TubeProblem:
         """Solve the problem from the stage data (001 eq. 11, 14 / 25–26); also whether
         the terminal set had to be dropped (unreachable: the QP failed with it)."""
         Np, l = self.Np, layout.l  # noqa: E741
+        self.sync_bounds()
         _, idx, y_ref, y_max, steps, b, d_idx = self.work(layout)
         xs, v_lim, s_o = data["xs"], data["v_lim"], data["s_o"]
         y_ref[:, :2] = xs[idx, :2]

@@ -191,14 +191,22 @@ class RobustSelfTriggeredMPC(TubeMPC):
     def _horizon(self, M: int) -> int:
         return M + self.N
 
+    def _held(self, M: int) -> tuple[np.ndarray, np.ndarray]:
+        """The output stages ``1..M−1`` and the increments ``0..M−1`` (eq. 25)."""
+        q = np.zeros(M + self.N, dtype=bool)
+        q[: M - 1] = True
+        s = np.zeros(M + self.N, dtype=bool)
+        s[:M] = True
+        return q, s
+
+    def _beta(self) -> float:
+        return self._params["beta"]
+
     def _stage_scales(self, M: int) -> dict[str, np.ndarray] | None:
-        """``1/β`` on the output stages ``1..M−1`` and the increments ``0..M−1`` (eq. 25)."""
+        """``1/β`` on the held stages (:meth:`_held`; eq. 25)."""
         ib = 1.0 / self._params["beta"]
-        q = np.ones(M + self.N)
-        q[: M - 1] = ib
-        s = np.ones(M + self.N)
-        s[:M] = ib
-        return {"Q": q, "S": s}
+        q_held, s_held = self._held(M)
+        return {"Q": np.where(q_held, ib, 1.0), "S": np.where(s_held, ib, 1.0)}
 
     def reset(self, ctx: ControlContext) -> None:
         super().reset(ctx)

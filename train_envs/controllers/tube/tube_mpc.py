@@ -47,10 +47,11 @@ import numpy as np
 from train_envs._jit import implementation
 from train_envs.controllers._common import distribute, input_shares
 from train_envs.controllers.base import ControlContext, Controller, Observation, TunableParam
-from train_envs.controllers.tube.closed_form import adopt, make_closed_form
+from train_envs.controllers.tube.closed_form import adopt, make_closed_form, weight_coefficients
 from train_envs.controllers.tube.model import (
     StoppingModel,
     TubeFeedback,
+    core_terminal_basis,
     stopping_model,
     terminal_weight,
     tube_feedback,
@@ -172,20 +173,50 @@ class TubeMPC(Controller):
 
     def _cost_matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Core weights: Q on [s, v, u], S = r_du on Δu, terminal ``P − CᵀQC`` on ξ (made
-        once per parameter change and model: every problem of the family shares them)."""
+        once per parameter change and model: every problem of the family shares them);
+        ``P − CᵀQC = A_clᵀ P A_cl + r_du KᵀK`` from its pieces
+        (:func:`.model.core_terminal_basis`)."""
+        return self._costs()[0]
+
+    def _costs(self) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
+        """``(core weights, terminal basis, closed-form coefficients)`` of the current
+        parameters (cached per parameter change and model)."""
         key = (self._current_keys()[0], self._model)
         hit = self.__dict__.get("_cost_cache")
         if hit is not None and hit[0][0] is key[0] and hit[0][1] is key[1]:
             return hit[1]
         p = self._params
         fb = self._feedback()
-        Qx = np.diag([p["q_s"], p["q_v"], 0.0, 0.0])
-        P = terminal_weight(fb.A_cl, fb.K, Qx, p["r_du"])
-        Kr = fb.K.reshape(1, 4)
-        P_core = fb.A_cl.T @ P @ fb.A_cl + p["r_du"] * (Kr.T @ Kr)  # = P − Qx exactly
-        out = (np.diag([p["q_s"], p["q_v"], 0.0]), np.array([[p["r_du"]]]), P_core)
+        basis = core_terminal_basis(fb.A_cl, fb.K)
+        P_core = np.tensordot(np.array([p["q_s"], p["q_v"], p["r_du"]]), basis, 1)
+        core = (np.diag([p["q_s"], p["q_v"], 0.0]), np.array([[p["r_du"]]]), P_core)
+        coef = weight_coefficients(p["q_s"], p["q_v"], p["r_du"], self._beta())
+        out = (core, basis, coef)
         self._cost_cache = (key, out)
         return out
+
+    def _beta(self) -> float:
+        """The discount of the held stages' cost (RSMPC's β; 1 here)."""
+        return 1.0
+
+    def _held(self, M: int) -> tuple[np.ndarray, np.ndarray]:
+        """Output stages ``1..Np`` and increments ``0..Np−1`` weighted ``1/β`` (none here)."""
+        Np = self._horizon(M)
+        return np.zeros(Np, dtype=bool), np.zeros(Np, dtype=bool)
+
+    def _set_cost(self, prob: TubeProblem) -> None:
+        """The closed form's weights of ``prob`` (:func:`.closed_form.weight_coefficients`)."""
+        core, prob.basis, prob.coef = self._costs()
+        prob.P_core = core[2]
+
+    def _sync_qp(self, prob: TubeProblem) -> None:
+        """Give the QP core the current weights before it solves (deferred: most steps
+        are decided in closed form)."""
+        if prob.qp_stale:
+            Q, S, P_core = self._cost_matrices()
+            with single_thread_blas():
+                prob.mpc.set_weights(Q=Q, S=S, P=P_core, stage_scales=self._stage_scales(prob.M))
+            prob.qp_stale = False
 
     def _stage_scales(self, M: int) -> dict[str, np.ndarray] | None:
         """Per-stage multipliers of Q and of the increment weight S (RSMPC's 1/β)."""
@@ -236,8 +267,9 @@ class TubeMPC(Controller):
             unconstrained_first=True,
             **terminal,
         )
-        prob = TubeProblem(M=M, Np=Np, mpc=mpc, tight=tight, H_N=H_N)
+        prob = TubeProblem(M=M, Np=Np, mpc=mpc, tight=tight, H_N=H_N, held=self._held(M))
         prob.weights_key = self._weights_key()
+        self._set_cost(prob)
         return prob
 
     def _weights_key(self) -> tuple:
@@ -266,9 +298,11 @@ class TubeMPC(Controller):
                 # K follows the weights: new tube, terminal rows and QP
                 fresh = self._make_problem(prob.M)
                 prob.mpc, prob.tight, prob.H_N = fresh.mpc, fresh.tight, fresh.H_N
+                prob.frames = None
+                prob.qp_stale = False
             else:
-                Q, S, P_core = self._cost_matrices()
-                prob.mpc.set_weights(Q=Q, S=S, P=P_core, stage_scales=self._stage_scales(prob.M))
+                prob.qp_stale = True
+            self._set_cost(prob)
             prob.w_bar = -1.0
             prob.explicit = None
         # (a change below 1e-12 relative -- an env's action round trip -- only updates
@@ -287,6 +321,7 @@ class TubeMPC(Controller):
         if prob.weights_key is not key or prob.w_bar != wb:
             with single_thread_blas():
                 self._refresh(prob)
+                self._explicit(prob)  # in the same BLAS block: each entry costs ~µs
         return prob
 
     # ------------------------------------------------------------------- reset
@@ -417,6 +452,7 @@ class TubeMPC(Controller):
 
     def _lower_bound(self, prob: TubeProblem, data: Mapping[str, Any]) -> float | None:
         """A lower bound on :meth:`_solve`'s cost (:meth:`TubeProblem.lower_bound`)."""
+        self._sync_qp(prob)
         return prob.lower_bound(self._layout, data)
 
     def _explicit(self, prob: TubeProblem) -> ClosedForm | bool:
@@ -446,6 +482,7 @@ class TubeMPC(Controller):
 
     def _solve(self, prob: TubeProblem, data: Mapping[str, Any]) -> MPCSolution:
         """Solve one problem of the family from the stage data (001 eq. 11, 14 / 25–26)."""
+        self._sync_qp(prob)
         sol, relaxed = prob.solve(self._layout, data, self._s_max)
         if relaxed:
             self._relaxed += 1
