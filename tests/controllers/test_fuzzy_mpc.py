@@ -191,6 +191,41 @@ def test_new_weights_take_effect_at_the_latest_after_the_delay(scenario):
         assert c._weights_since is None
 
 
+def test_between_a_weight_change_and_its_solve_the_last_feasible_gains_act(scenario):
+    """Until the solve that takes new weights, the cached solution (gains F_j and their
+    ellipsoid) is the one of the last feasible solve; that solve uses the new weights."""
+    from train_envs.simulation import ClosedLoop
+
+    sc = scenario.with_overrides(t_max_s=60.0)
+    delay = 6
+    c = FuzzyMPCController(sc, weights_delay_steps=delay)
+    loop = ClosedLoop(sc, c)
+    loop.reset(seed=0)
+    for _ in range(30):  # past the first solves
+        loop.step(c.compute(loop.observe())[0])
+    sol = c._sol
+    c.set_params(q_v=4.0, q_dx=3e-3, r_e=0.05)
+    seen = []
+    for _ in range(delay + 1):
+        before = c._sol
+        u, info = c.compute(loop.observe())
+        loop.step(u)
+        seen.append(info["triggered"])
+        if info["triggered"]:
+            break
+        assert before is sol and c._sol is sol  # the last feasible gains, unchanged
+    assert seen[-1] == 1.0 and len(seen) <= delay + 1
+    assert c._weights_since is None and c._sol is not sol
+    # the taking solve used the new weights: re-solving it with them gives its γ
+    W, R = c._model.weights(4.0, 3e-3, 0.05)
+    new = c._sol
+    A, B = c._model.rules(c._v_solve, c.memberships.centres)
+    u_bar = np.sqrt(c._lmi.ubar2.value)
+    again = c._lmi.solve(A, B, new.x, W, R, c._model.C_u, u_bar, c.floor)
+    assert again.gamma == pytest.approx(new.gamma, rel=1e-9)
+    assert not np.isclose(new.gamma, sol.gamma, rtol=1e-3)
+
+
 def test_weights_changing_every_step_do_not_force_a_solve_every_step(scenario):
     """Weights changed at every step (an RL agent): with ``weights_delay_steps=0`` every
     step solves the LMI; with a delay only the re-solve events do (the state leaving or

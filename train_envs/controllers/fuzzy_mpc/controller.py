@@ -102,6 +102,16 @@ class FuzzyMPCController(Controller):
         TunableParam("c2", 0.1, 3.0, 3.0, description="compensator gain of the rate error [1/s]"),
     )
     _WEIGHTS = ("q_v", "q_dx", "r_e")
+    #: when a parameter change acts (shown on the env contract pages)
+    PARAMS_TAKE_EFFECT = (
+        "`c1`, `c2` act at the next control step. The weights `q_v`, `q_dx`, `r_e` act "
+        "at the next LMI re-solve: one that an event triggers anyway (the state leaves "
+        "or has shrunk inside the cached invariant ellipsoid, the reference speed moved), "
+        "at the latest `weights_delay_steps` (default 100) control steps after the first change "
+        "not yet taken. Until then the PDC gains of the last feasible solve stay in use; "
+        "their invariant ellipsoid and the input bounds it certifies do not depend on the "
+        "weights, so only optimality refers to the earlier weights."
+    )
 
     def __init__(
         self,
