@@ -223,7 +223,8 @@ class BatchDMC:
             self.dU_shift, self._dU_last, self._lev_last, self._pending, self._gemv,
             w, lo_a, hi_a, ok, u_a,
         )  # fmt: skip
-        info = np.tile(np.array(UNCONSTRAINED_INFO, dtype=float), (n, 1))
+        info = np.empty((n, len(UNCONSTRAINED_INFO)))
+        info[:] = UNCONSTRAINED_INFO
         for r in np.flatnonzero(~ok).tolist():  # the QP, member by member
             b = int(ix[r])
             u_a[r], info[r], self.dU_shift[b, :-1] = self._qp_step(
