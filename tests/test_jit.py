@@ -62,3 +62,32 @@ def test_registered_twin_is_chosen_by_the_table(monkeypatch):
     with pytest.raises(KeyError, match="no registered twin"):
         _jit.implementation("test.nothing")
     del _jit.TWINS["test.triple"]
+
+
+def test_a_twin_that_is_not_available_gives_the_reference():
+    f = _source_function("def double(x):\n    return 2.0 * x\n", "double")
+    _jit.register("test.double", f, available=lambda: False)
+    assert _jit.implementation("test.double") is f
+    with pytest.raises(RuntimeError, match="unavailable"):
+        _jit.implementation("test.double", compiled_twin=True)
+    del _jit.TWINS["test.double"]
+
+
+def test_numpy_dgemv_in_compiled_code_sums_as_ndarray_dot():
+    gemv = _jit.numpy_dgemv()
+    if not _jit.enabled() or gemv is None:
+        pytest.skip("numba or numpy's OpenBLAS not available")
+
+    def rows(g, A, X, out):
+        m, n = A.shape
+        for r in range(X.shape[0]):
+            g(102, 112, n, m, 1.0, A.ctypes, n, X[r].ctypes, 1, 0.0, out[r].ctypes, 1)
+
+    fast = _jit.compiled(rows)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        A = rng.standard_normal((15, 15)) * rng.uniform(0.1, 10.0)
+        X = rng.standard_normal((8, 15)) * rng.uniform(1e-3, 1e2)
+        out = np.empty((8, 15))
+        fast(gemv, A, X, out)
+        assert np.array_equal(out, np.array([A.dot(x) for x in X]))

@@ -100,6 +100,40 @@ def bisect_right(xs: np.ndarray, x: float) -> int:
     return lo
 
 
+_DGEMV: list[Any] = []
+
+
+def numpy_dgemv() -> Any:
+    """The ``cblas_dgemv`` of the OpenBLAS numpy itself is linked to, as a ctypes function
+    (compiled code can call it), or None where numpy's wheel library is not found.
+
+    A compiled matrix-vector product through it sums in the order of ``ndarray.dot``
+    (the same library, kernel and arguments): ``A x`` of a C-contiguous ``A`` (m, n) is
+    ``dgemv(102, 112, n, m, 1.0, A, n, x, 1, 0.0, y, 1)`` (column-major ``Aᵀ``,
+    transposed), numpy's own call.
+    """
+    if not _DGEMV:
+        import ctypes
+        import glob
+
+        libs = glob.glob(
+            os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs", "*openblas64*")
+        )
+        fn = None
+        if libs:
+            try:
+                fn = ctypes.CDLL(libs[0]).scipy_cblas_dgemv64_
+            except (OSError, AttributeError):  # pragma: no cover - another numpy build
+                fn = None
+        if fn is not None:
+            dp, i64 = ctypes.POINTER(ctypes.c_double), ctypes.c_int64
+            fn.argtypes = [ctypes.c_int, ctypes.c_int, i64, i64, ctypes.c_double, dp, i64]
+            fn.argtypes += [dp, i64, ctypes.c_double, dp, i64]
+            fn.restype = None
+        _DGEMV.append(fn)
+    return _DGEMV[0]
+
+
 # ------------------------------------------------------------------ the table of twins
 @dataclass(frozen=True)
 class Twin:
@@ -115,6 +149,7 @@ class Twin:
     reference: Callable[..., Any]
     source: Callable[..., Any]
     helpers: Mapping[str, Callable[..., Any]]
+    available: Callable[[], bool] | None = None
 
 
 #: name -> twin; each module that defines a reference registers it next to it
@@ -127,10 +162,12 @@ def register(
     *,
     source: Callable[..., Any] | None = None,
     helpers: Mapping[str, Callable[..., Any]] | None = None,
+    available: Callable[[], bool] | None = None,
 ) -> Callable[..., Any]:
     """Register ``reference`` (and the source of its compiled twin) under ``name``;
-    returns ``reference`` so it can be used as a decorator's result. Idempotent."""
-    TWINS[name] = Twin(name, reference, source or reference, dict(helpers or {}))
+    returns ``reference`` so it can be used as a decorator's result. Idempotent.
+    ``available``: a predicate the twin also needs (e.g. :func:`numpy_dgemv` found)."""
+    TWINS[name] = Twin(name, reference, source or reference, dict(helpers or {}), available)
     return reference
 
 
@@ -147,7 +184,8 @@ def implementation(name: str, *, compiled_twin: bool | None = None) -> Callable[
     twin = TWINS[name]
     if compiled_twin is False:
         return twin.reference
-    fast = compiled(twin.source, twin.helpers)
+    ready = twin.available is None or twin.available()
+    fast = compiled(twin.source, twin.helpers) if ready else None
     if fast is None:
         if compiled_twin:
             raise RuntimeError(f"compiled twin of {name!r} unavailable (numba missing or disabled)")

@@ -50,9 +50,8 @@ def per_time(t: np.ndarray, fn: Any) -> np.ndarray:
     """``fn(t_i)`` for every member's time ``t_i`` (members in lockstep share one time,
     evaluated once): an array of ``fn``'s values, one row per member."""
     t0 = t.item(0)
-    if (t == t0).all():  # in lockstep: one evaluation (a read-only broadcast)
-        val = np.asarray(fn(t0), dtype=float)
-        return np.broadcast_to(val, (t.shape[0], *val.shape))
+    if (t == t0).all():  # in lockstep: one evaluation, repeated
+        return np.asarray(fn(t0), dtype=float)[None].repeat(t.shape[0], axis=0)
     ut, inv = np.unique(t, return_inverse=True)
     vals = np.array([fn(float(x)) for x in ut.tolist()], dtype=float)
     return vals[inv.reshape(-1)]

@@ -101,6 +101,7 @@ class BatchLoop:
         self._info_index = {key: n0 + j for j, key in enumerate(INFO_COLUMNS)}
         #: the info columns the controller has given (in INFO_COLUMNS order)
         self._info: dict[str, np.ndarray] = {}
+        self._cols: dict[tuple[str, ...], tuple[list[str], np.ndarray]] = {}
         #: the last control step's fallback, slack_max, iterations per member (NaN: none)
         self._last = np.full((B, 3), np.nan)
 
@@ -185,16 +186,9 @@ class BatchLoop:
             np.where(v - limit > 0.0, v - limit, 0.0),
             self._overrun(s),
         ]  # in the order of _COLUMNS
-        keys = [key for key in INFO_COLUMNS if key in info]
-        for key in keys:
-            if key not in self._info:
-                self._info = {
-                    c: self._info_all[c] for c in INFO_COLUMNS if c in self._info or c == key
-                }
-        cols = np.arange(len(_COLUMNS))
+        keys, cols = self._columns(tuple(info))
         if keys:
             row += [info[key] for key in keys]
-            cols = np.concatenate([cols, [self._info_index[key] for key in keys]])
         vals = np.array(row, dtype=float)
         k0 = int(k[0])
         if np.all(k == k0):
@@ -210,6 +204,23 @@ class BatchLoop:
         self.k[ix] += 1
         self._check_done(ix)
         return act
+
+    def _columns(self, given: tuple[str, ...]) -> tuple[list[str], np.ndarray]:
+        """(the info keys recorded, in INFO_COLUMNS order; the table columns of a row)
+        for the info keys ``given`` by the controller (once per set of keys)."""
+        out = self._cols.get(given)
+        if out is None:
+            keys = [key for key in INFO_COLUMNS if key in given]
+            for key in keys:
+                if key not in self._info:
+                    self._info = {
+                        c: self._info_all[c] for c in INFO_COLUMNS if c in self._info or c == key
+                    }
+            cols = np.arange(len(_COLUMNS))
+            if keys:
+                cols = np.concatenate([cols, [self._info_index[key] for key in keys]])
+            out = self._cols[given] = (keys, cols)
+        return out
 
     def last_info(self, b: int) -> dict[str, float]:
         """Member ``b``'s fallback, slack_max and iterations of its last control step

@@ -4,13 +4,14 @@
 with the online correction h_c, satisfaction J, softening α and feedforward; the
 equations are in :mod:`.laws`, :mod:`.prediction` and :mod:`.setpoint`) for B members
 that share the structure (train, horizons, weights, timing) and the control instant,
-each with its own seven tunable parameters and its own state. Every law is evaluated
-elementwise over the members with the single controller's operations, and the two
-small matrix-vector products ``A ΔU`` and ``K e_w`` stay the single controller's
-products, member by member: every member equals its single controller bit for bit
-(tested). A member whose plan leaves the rate box or the envelope solves its QP on
-its own :class:`~.qp.DMCProblem` (OSQP, as the single controller), with the warm start
-the single controller would have.
+each with its own seven tunable parameters and its own state. The setpoint preview and
+the feedforward are array operations over the members; the rest of the law runs in the
+three stages of :mod:`.batch_law` (registered twins: a numpy reference and a compiled
+member loop), with the single controller's operations and its matrix-vector products
+``A ΔU`` and ``K e_w`` (numpy's own ``dgemv``): every member equals its single
+controller bit for bit (tested). A member whose plan leaves the rate box or the
+envelope solves its QP on its own :class:`~.qp.DMCProblem` (OSQP, as the single
+controller), with the warm start the single controller would have.
 """
 
 from __future__ import annotations
@@ -21,25 +22,28 @@ from typing import Any
 
 import numpy as np
 
-from train_envs.controllers.batch import (
-    clip_like,
-    per_time,
-    resistance_array,
-    rule_outputs,
-    rules_batchable,
-)
+from train_envs import _jit
+from train_envs.controllers.batch import per_time, resistance_array, rules_batchable
+from train_envs.controllers.dmc.batch_law import COMMAND, PLAN, PREDICT, envelope_constants
 from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.dmc.qp import UNCONSTRAINED_INFO
-from train_envs.controllers.fuzzy import trapmf
 
 __all__ = ["BatchDMC", "batchable_dmc"]
 
 
 def batchable_dmc(ctrl: DMCController) -> bool:
     """Whether a reset ``ctrl`` has a lockstep twin here: one whole-train input, a
-    time-indexed profile read through its scalar methods, a uniform rule partition."""
+    time-indexed profile read through its scalar methods, a uniform rule partition, an
+    envelope without effort tables and P ≤ 128 (the stages' pairwise mean)."""
     sp = ctrl._setpoint
-    return ctrl._single and sp.scalar and ctrl.rules.single and rules_batchable(ctrl.rules)
+    return (
+        ctrl._single
+        and sp.scalar
+        and ctrl.rules.single
+        and rules_batchable(ctrl.rules)
+        and not ctrl.ctx.train.envelope.tabulated
+        and ctrl.P <= 128
+    )
 
 
 class BatchDMC:
@@ -66,7 +70,39 @@ class BatchDMC:
         self._derived()
         self._qp_pool = qp_pool
         self._steps = np.arange(1, ref.P + 1)
+        self._constants()
+        self._predict = _jit.implementation(PREDICT)
+        self._plan = _jit.implementation(PLAN)
+        self._command = _jit.implementation(COMMAND)
+        self._gemv = _jit.numpy_dgemv()
         self.reset()
+
+    def _constants(self) -> None:
+        """The structure's constants in the stages' array form (:mod:`.batch_law`)."""
+        ref = self.ref
+        pe, pc = ref.rules.pe, ref.rules.pc
+        self._rc = np.array([pe._lo, pe._h, pe.n, pe._hi, pc._lo, pc._h, pc.n, pc._hi], float)
+        self._Ch = np.ascontiguousarray(ref.rules.C[0], dtype=float)
+        sh = ref.satisfaction_shape
+        a, b, c, d = sh.y_trap
+        sym = a == -d and b == -c and b - a == d - c and b > a
+        self._sc = np.array(
+            [ref._kf, ref.ctx.dt_s, ref.h_min, ref.M, ref.k_davis, ref.tail_ratio,
+             sh.e_tol, sh.edot_tol, sh.t_big, *sh.t_trap, *sh.y_trap,
+             1.0 if sh.combine == "min" else 0.0, 1.0 if sym else 0.0],
+            dtype=float,
+        )  # fmt: skip
+        self._a = np.ascontiguousarray(ref.a, dtype=float)
+        self._A_dyn = np.ascontiguousarray(ref.A_dyn, dtype=float)
+        self._K = np.ascontiguousarray(ref.qp.K, dtype=float)
+        self._env = envelope_constants(ref.ctx.train.envelope)
+        level = 1.0 if ref.reference_form == "level" else 0.0
+        classic = 1.0 if ref.classic_law else 0.0
+        self._cp = np.array([ref.M, float(ref.qp.du_rows), level, classic])
+        nan = math.nan
+        jerk = nan if ref._jerk_du is None else ref._jerk_du
+        du = nan if ref._du_step is None else ref._du_step
+        self._cc = np.array([ref.M, jerk, du])
 
     def _derived(self) -> None:
         col = self.p
@@ -77,6 +113,9 @@ class BatchDMC:
         self.a_lo = np.array([min(a, b) for a, b in zip(lo, hi, strict=True)])
         self.a_hi = col["alpha_max"]
         self.trend = col["alpha_trend"]
+        #: rows k_e, k_ec, h0, k_h, γ, α_lo, α_hi (the stages' parameter matrix)
+        self.par = np.stack([self.k_e, self.k_ec, self.h0, self.k_h, self.trend, self.a_lo,
+                             self.a_hi])  # fmt: skip
 
     def set_params(self, b: int, params: Mapping[str, float]) -> None:
         """Member ``b``'s parameters (the full set, as ``get_params`` gives it)."""
@@ -151,55 +190,6 @@ class BatchDMC:
             y_all[held] = -sp.hold
         return y_all[:, 0], y_all[:, 1:]
 
-    def _satisfaction(
-        self, e: np.ndarray, edot: np.ndarray, y_pred: np.ndarray, y_r: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(t_r, J) of :func:`~.laws.satisfaction` over the members."""
-        sh = self.ref.satisfaction_shape
-        ae, aed = np.abs(e), np.abs(edot)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = ae / aed
-        t_r = np.where(
-            (ae <= sh.e_tol) & (aed <= sh.edot_tol),
-            0.0,
-            np.where(e * edot < 0.0, np.where(sh.t_big < ratio, sh.t_big, ratio), sh.t_big),
-        )
-        mu_t = np.where(t_r == 0.0, 1.0, trapmf(t_r, *sh.t_trap))
-        a, b, c, d = sh.y_trap
-        x = y_pred - y_r
-        if a == -d and b == -c and b - a == d - c and b > a:
-            ax = np.abs(x)
-            mus = np.where(ax <= c, 1.0, np.where(ax >= d, 0.0, (d - ax) / (d - c)))
-        else:
-            mus = trapmf(x, a, b, c, d)
-        mu_y = np.add.reduce(mus, axis=1) / mus.shape[1]
-        J = np.where(mu_y < mu_t, mu_y, mu_t) if sh.combine == "min" else mu_t * mu_y
-        return t_r, J
-
-    def _alpha(self, J: np.ndarray, ix: np.ndarray) -> np.ndarray:
-        J = np.where(1.0 < J, 1.0, J)
-        J = np.where(0.0 > J, 0.0, J)
-        trend = self.trend[ix]
-        # expm1 member by member with math.expm1, as the single law: numpy's array expm1
-        # may take a SIMD routine (AVX-512) whose last bits differ from the C library's
-        em1 = math.expm1
-        num = np.array([em1(x) for x in (trend * (1.0 - J)).tolist()])
-        den = np.array([em1(x) for x in trend.tolist()])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = np.where(np.abs(trend) < 1e-9, 1.0 - J, num / den)
-        lo = self.a_lo[ix]
-        return lo + (self.a_hi[ix] - lo) * f
-
-    @staticmethod
-    def _matvec(A: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """``A x`` for every row ``x`` of ``X``: the single controller's matrix-vector
-        product row by row (one matrix product over the rows may sum in another order,
-        and the closed loop amplifies a last-bit difference to ~1e-6 within an episode)."""
-        out = np.empty((X.shape[0], A.shape[0]))
-        for r, x in enumerate(X):
-            out[r] = A.dot(x)
-        return out
-
     # ------------------------------------------------------------------ step
     def compute(
         self, ix: np.ndarray, t: np.ndarray, s: np.ndarray, v: np.ndarray, u_prev_N: np.ndarray
@@ -208,98 +198,40 @@ class BatchDMC:
         positions ``s``, speeds ``v`` and the commands applied last ``u_prev_N`` (each
         of length ``len(ix)``); returns their commands [N] and info columns."""
         ref = self.ref
-        M, P = ref.M, ref.P
+        P = ref.P
         y = v
         if not np.all(np.isfinite(y)) or not np.all(np.isfinite(s)):
             raise ValueError("measured speed v_mps / position s_m must be finite")
         y0_ref, y_r = self._setpoint(t, s)
-        e = y0_ref - y
-        first = ~self.started[ix]
-        e_prev = np.where(first, e, self.e_prev[ix])
-        edot_old = self.edot[ix]
-        edot = edot_old + ref._kf * ((e - e_prev) / ref.ctx.dt_s - edot_old)
-        self.edot[ix] = edot
-        self.e_prev[ix] = e
-        dh = rule_outputs(ref.rules, e, edot, self.k_e[ix], self.k_ec[ix])[0]
-        h_c = self.h0[ix] + self.k_h[ix] * dh
-        h_c = np.where(ref.h_min > h_c, ref.h_min, h_c)
-        h_c = np.where(1.0 < h_c, 1.0, h_c)
+        y_r = np.ascontiguousarray(y_r)
         ff = self._feedforward(s, y)
-
-        # prediction vector (first step: the flat equilibrium vector)
-        yN0 = self.yN0[ix]
-        u_prev2 = self.u_prev2[ix]
-        u_prev = (u_prev_N - np.where(first, ff, self.ff_prev[ix])) / M
-        yN1 = yN0 + ref.a * (u_prev - u_prev2)[:, None]
-        e_c = y - yN1[:, 0]
-        out = np.empty_like(yN1)
-        out[:, :-1] = yN1[:, 1:] + (h_c * e_c)[:, None]
-        c1 = out[:, -2]
-        c2 = out[:, -3] if ref.N > 2 else yN1[:, 0] + e_c
-        out[:, -1] = c1 + ref.tail_ratio * (c1 - c2)
-        if first.any():
-            out[first] = y[first, None]
-            u_prev2 = np.where(first, ref.k_davis * y / M, u_prev)
-            e_c = np.where(first, 0.0, e_c)
-        else:
-            u_prev2 = u_prev
-        self.yN0[ix] = out
-        self.u_prev2[ix] = u_prev2
-        self.started[ix] = True
-        yP0 = out[:, :P]
-
-        # satisfaction, softening, softened reference
-        dU_shift = self.dU_shift[ix]
-        y_pred = yP0 + self._matvec(ref.A_dyn, dU_shift)
-        t_r, J = self._satisfaction(e, edot, y_pred, y_r)
-        alpha = self._alpha(J, ix)
-        ai = alpha[:, None] ** self._steps
-        if ref.reference_form == "level":
-            w = ai * y[:, None] + (1.0 - ai) * y_r
-        else:
-            w = y_r - ai * (y0_ref - y)[:, None]
-
-        # the classic plan, else the QP member by member
-        v_plan = np.concatenate([y[:, None], y_pred[:, :-1]], axis=1)
-        v_plan = np.where(v_plan > 0.0, v_plan, 0.0)
-        dU = self._matvec(ref.qp.K, w - yP0)
-        lev = np.cumsum(dU, axis=1) + u_prev[:, None]
-        tr = ref.ctx.train
-        lo, hi = tr.envelope_N(v_plan)
-        levels = np.concatenate([lev, np.repeat(lev[:, -1:], P - ref.L, axis=1)], axis=1)
-        lo_a = (lo - ff[:, None]) / M
-        hi_a = (hi - ff[:, None]) / M
-        ok = (np.maximum(dU.max(axis=1), -dU.min(axis=1)) <= ref.qp.du_rows) & np.all(
-            (lo_a <= levels) & (levels <= hi_a), axis=1
-        )
-        if not ref.classic_law:
-            ok[:] = False
-        u_a = lev[:, 0].copy()
-        dU_shift[:, :-1] = dU[:, 1:]
         n = len(ix)
-        info = np.tile(np.array(UNCONSTRAINED_INFO, dtype=float), (n, 1))
-        if ref.classic_law:
-            self._dU_last[ix[ok]] = dU[ok]
-            self._lev_last[ix[ok]] = lev[ok]
-            self._pending[ix[ok]] = True
-        for r in np.flatnonzero(~ok).tolist():
-            u_a[r], info[r], dU_shift[r, :-1] = self._qp_step(
-                int(ix[r]), w[r], yP0[r], float(u_prev[r]), lo_a[r], hi_a[r]
+        u_prev, h_c, J, alpha = (np.empty(n) for _ in range(4))
+        yP0, y_pred = np.empty((n, P)), np.empty((n, P))
+        self._predict(
+            ix, y, y0_ref, y_r, ff, u_prev_N, self.started, self.e_prev, self.edot,
+            self.u_prev2, self.ff_prev, self.yN0, self.dU_shift, self.par, self._a,
+            self._A_dyn, self._Ch, self._rc, self._sc, self._gemv,
+            u_prev, h_c, yP0, y_pred, J, alpha,
+        )  # fmt: skip
+        ai = alpha[:, None] ** self._steps  # numpy's power, as the single law
+        w, lo_a, hi_a = np.empty((n, P)), np.empty((n, P)), np.empty((n, P))
+        ok = np.empty(n, dtype=bool)
+        u_a = np.empty(n)
+        self._plan(
+            ix, y, y0_ref, y_r, ff, u_prev, yP0, y_pred, ai, self._K, self._env, self._cp,
+            self.dU_shift, self._dU_last, self._lev_last, self._pending, self._gemv,
+            w, lo_a, hi_a, ok, u_a,
+        )  # fmt: skip
+        info = np.empty((n, len(UNCONSTRAINED_INFO)))
+        info[:] = UNCONSTRAINED_INFO
+        for r in np.flatnonzero(~ok).tolist():  # the QP, member by member
+            b = int(ix[r])
+            u_a[r], info[r], self.dU_shift[b, :-1] = self._qp_step(
+                b, w[r], yP0[r], float(u_prev[r]), lo_a[r], hi_a[r]
             )
-        self.dU_shift[ix] = dU_shift
-
-        # command: comfort jerk limit, envelope, rate limit
-        u = u_a * M + ff
-        if ref._jerk_du is not None:
-            u = clip_like(u, u_prev_N - ref._jerk_du, u_prev_N + ref._jerk_du)
-        if np.all(y >= 0.0):  # |y| is the first speed of the plan
-            lo_y, hi_y = lo[:, 0], hi[:, 0]
-        else:
-            lo_y, hi_y = tr.envelope_N(y)
-        u = clip_like(u, lo_y, hi_y)
-        if ref._du_step is not None:
-            u = clip_like(u, u_prev_N - ref._du_step, u_prev_N + ref._du_step)
-        self.ff_prev[ix] = ff
+        u = np.empty(n)
+        self._command(ix, u_a, ff, y, u_prev_N, self._env, self._cc, self.ff_prev, u)
         return u, {
             "alpha": alpha,
             "h_c": h_c,
