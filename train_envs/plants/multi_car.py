@@ -345,7 +345,7 @@ class TrainPlant:
         else:
             val = float(self._split(u)[0])
         v = abs(v)
-        env = self.train.envelope  # (TrainParams.max_traction_N / max_brake_N)
+        env = self.train.envelope  # (TrainParams.max_traction_N, max_brake_N)
         hi = env.traction_N(v) * self._share0
         lo = -env.brake_N(v) * self._share0
         out = lo if val < lo else val  # np.maximum(val, lo)
@@ -623,8 +623,7 @@ class TrainPlant:
             w = self._w_now
             F = w if type(w) is float else float(w[0])
         g = self.gradient_permil
-        if type(g) is PiecewiseLinear:
-            g = g.at  # the table at a float position
+        g = g.at if type(g) is PiecewiseLinear else g  # (the table at a float position)
         return self._acc_coef * F + self._nl.single(z[0], z[1], self.t, g)
 
     def _lead_state(self) -> tuple[float, float, float, float]:
