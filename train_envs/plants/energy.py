@@ -14,22 +14,26 @@ from __future__ import annotations
 import numpy as np
 
 
-def np_sum(x: list[float]) -> float:
-    """``float(np.sum(x))`` of a short list, in numpy's order of summation.
+def np_sum(x) -> float:
+    """``float(np.sum(x))`` of a short sequence (a list, or an array in compiled code), in
+    numpy's order of summation.
 
     numpy adds up to 7 numbers left to right and longer runs (up to its 128-element
     block) in 8 interleaved partial sums, combined pairwise; restating that keeps the
-    float paths' energy integrals identical to the array code's.
+    float paths' sums identical to the array code's (the plants' energy integrals, the
+    lockstep DMC's satisfaction mean). Written with indices only, so that numba compiles
+    it as a helper of a compiled twin.
     """
     n = len(x)
     if n < 8:
         r = x[0]
-        for y in x[1:]:
-            r += y
+        for i in range(1, n):
+            r += x[i]
         return r
     if n > 128:
         return float(np.sum(x))
-    r0, r1, r2, r3, r4, r5, r6, r7 = x[:8]
+    r0, r1, r2, r3 = x[0], x[1], x[2], x[3]
+    r4, r5, r6, r7 = x[4], x[5], x[6], x[7]
     m = n - n % 8
     for i in range(8, m, 8):
         r0 += x[i]
@@ -41,8 +45,8 @@ def np_sum(x: list[float]) -> float:
         r6 += x[i + 6]
         r7 += x[i + 7]
     res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    for y in x[m:]:
-        res += y
+    for i in range(m, n):
+        res += x[i]
     return res
 
 

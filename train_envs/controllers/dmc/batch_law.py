@@ -27,6 +27,7 @@ import numpy as np
 from train_envs import _jit
 from train_envs.controllers.fuzzy import trapmf
 from train_envs.effort import ForceEnvelope
+from train_envs.plants.energy import np_sum
 
 __all__ = ["COMMAND", "PLAN", "PREDICT", "envelope_constants"]
 
@@ -249,31 +250,6 @@ def _trap(x, a, b, c, d):
     return m if m > 0.0 else 0.0
 
 
-def _pairwise(x, n):
-    """numpy's pairwise sum of ``x[:n]`` (n ≤ 128: eight partial sums, then the rest)."""
-    if n < 8:
-        s = 0.0
-        for i in range(n):
-            s = s + x[i]
-        return s
-    r0, r1, r2, r3 = x[0], x[1], x[2], x[3]
-    r4, r5, r6, r7 = x[4], x[5], x[6], x[7]
-    m = n - n % 8
-    for i in range(8, m, 8):
-        r0 += x[i]
-        r1 += x[i + 1]
-        r2 += x[i + 2]
-        r3 += x[i + 3]
-        r4 += x[i + 4]
-        r5 += x[i + 5]
-        r6 += x[i + 6]
-        r7 += x[i + 7]
-    s = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    for i in range(m, n):
-        s += x[i]
-    return s
-
-
 def predict_loop(
     ix, y, y0_ref, y_r, ff, u_prev_N, started, e_prev, edot_s, u_prev2_s, ff_prev, yN0_s,
     dU_shift, par, a, A_dyn, Ch, rc, sc, gemv, u_prev_o, h_c_o, yP0_o, y_pred_o, J_o, alpha_o,
@@ -348,7 +324,7 @@ def predict_loop(
                 mus[k] = 1.0 if ax <= yc else (0.0 if ax >= yd else (yd - ax) / (yd - yc))
             else:
                 mus[k] = _trap(x, ya, yb, yc, yd)
-        mu_y = _pairwise(mus, P) / P
+        mu_y = np_sum(mus[:P]) / P
         if sc[17] != 0.0:
             J = mu_y if mu_y < mu_t else mu_t
         else:
@@ -448,7 +424,7 @@ _jit.register(
     PREDICT,
     predict_ref,
     source=predict_loop,
-    helpers={"_locate1": _locate1, "_trap": _trap, "_pairwise": _pairwise},
+    helpers={"_locate1": _locate1, "_trap": _trap, "np_sum": np_sum},
     available=_has_dgemv,
 )
 _jit.register(PLAN, plan_ref, source=plan_loop, helpers={"_bounds": _bounds}, available=_has_dgemv)
