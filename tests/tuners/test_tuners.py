@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 from pymoo.core.problem import Problem
 from pymoo.problems import get_problem
-from study_watch import wait_for_trials
 
 # kept light: worker processes of the crash test import this module to unpickle
 # FlakyTask; everything heavier is imported inside the tests
@@ -324,33 +323,25 @@ def test_stored_params_are_what_the_controller_ran(monkeypatch, space):
     assert r.selected_params == {n: float(r.selected[n]) for n in ("kp", "ki", "kd")}
 
 
+#: a run that SIGKILLs itself right after its 7th stored evaluation: generation 1 has at
+#: most 5 evaluations, so the kill falls inside generation 2, whatever the machine's speed
 KILL_SCRIPT = textwrap.dedent(
     """
-    import sys
+    import os, signal, sys
+    from tuners import storage
     from tuners.run import tune
+    _record, _stored = storage.StudyStore.record, []
+    def record(self, *args, **kwargs):
+        _record(self, *args, **kwargs)
+        _stored.append(1)
+        if len(_stored) == 7:
+            os.kill(os.getpid(), signal.SIGKILL)
+    storage.StudyStore.record = record
     if __name__ == "__main__":
         tune("{env}", "mowoa", pop=5, iters=3, backend="serial", storage=sys.argv[1],
              study=sys.argv[2], seeds=[0], seed=5, objectives=["itae", "stop", "comfort"])
     """
 )
-
-
-def _wait_for_journal_trials(path: Path, n: int, proc: subprocess.Popen, poll_s: float) -> None:
-    """Poll an Optuna journal file until it holds ``n`` trial creations."""
-    import json
-    import time
-
-    from optuna.storages.journal._storage import JournalOperation
-
-    deadline = time.time() + 90
-    while time.time() < deadline and proc.poll() is None:
-        if path.exists():
-            lines = [ln for ln in path.read_text().splitlines() if ln.endswith("}")]
-            ops = [json.loads(ln)["op_code"] for ln in lines]
-            if ops.count(JournalOperation.CREATE_TRIAL) >= n:
-                return
-        time.sleep(poll_s)
-    raise AssertionError(f"the writer stored fewer than {n} trials (rc {proc.poll()})")
 
 
 @pytest.mark.parametrize("storage", ["sqlite", "journal"])
@@ -375,15 +366,8 @@ def test_resume_after_kill_is_identical(tmp_path, storage):
     script = tmp_path / "run.py"
     script.write_text(KILL_SCRIPT.format(env=PID))
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, str(script), db, "killed"], env=env, cwd=REPO)
-    try:  # generation 1 has at most 5 evaluations: 7 trials = inside generation 2
-        if storage == "journal":
-            _wait_for_journal_trials(tmp_path / "runs.log", 7, proc, poll_s=0.02)
-        else:
-            wait_for_trials(tmp_path / "runs.db", 7, proc, poll_s=0.02)
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(30)
+    proc = subprocess.run([sys.executable, str(script), db, "killed"], env=env, cwd=REPO)
+    assert proc.returncode == -signal.SIGKILL  # killed by itself after 7 stored trials
     done_gen = checkpoint_info("killed", db)["n_gen"]
     before = {t.user_attrs["tuner"]["key"] for t in _trials(db, "killed")}
     gens_before = [t.user_attrs["generation"] for t in _trials(db, "killed")]
