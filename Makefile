@@ -1,6 +1,6 @@
 # make demo : set up .venv and run the main job: a short MOWOA tuning of paper 004's DMC
 #             (SQLite study in out/demo), selected vs default parameters on held-out
-#             seeds, Pareto and speed-distance plots in out/demo (~25 s on 2 cores)
+#             seeds, Pareto and speed-distance plots in out/demo (~12 s on 2 cores)
 # make test : set up .venv and run the whole test suite
 PYTHON ?= python3
 VENV   := .venv
