@@ -82,13 +82,35 @@ def feedforward_array(ctx: Any, s: np.ndarray, v: np.ndarray) -> np.ndarray:
     return resistance_array(tr, v) + tr.mass_kg * G * theta / 1000.0
 
 
+def locate_uniform(
+    x: np.ndarray, lo: float, h: float, n: int, hi: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`TriangularPartition.locate` of a uniform partition (first centre ``lo``,
+    spacing ``h``, ``n`` terms, last centre ``hi``), elementwise."""
+    f = (x - lo) / h
+    i = np.minimum(np.where(f > 0.0, f, 0.0).astype(np.int64), n - 2)
+    w = np.minimum(1.0, f - i)
+    below, above = x <= lo, x >= hi
+    return (
+        np.where(below, 0, np.where(above, n - 2, i)),
+        np.where(below, 0.0, np.where(above, 1.0, w)),
+    )
+
+
 def locate(part: TriangularPartition, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:meth:`TriangularPartition.locate` of a uniform partition, elementwise."""
-    f = (x - part._lo) / part._h
-    i = np.minimum(np.where(f > 0.0, f, 0.0).astype(np.int64), part.n - 2)
-    w = np.minimum(1.0, f - i)
-    lo, hi = x <= part._lo, x >= part._hi
-    return np.where(lo, 0, np.where(hi, part.n - 2, i)), np.where(lo, 0.0, np.where(hi, 1.0, w))
+    return locate_uniform(x, part._lo, part._h, part.n, part._hi)
+
+
+def rule_cell(
+    C: np.ndarray, i: np.ndarray, a: np.ndarray, j: np.ndarray, b: np.ndarray
+) -> np.ndarray:
+    """Product inference over the active cell ``(i, j)`` (weights ``a``, ``b`` of the
+    right and upper terms) of the rule table ``C``, elementwise."""
+    a1, b1 = 1.0 - a, 1.0 - b
+    w00, w01, w10, w11 = a1 * b1, a1 * b, a * b1, a * b
+    i1, j1 = i + 1, j + 1
+    return w00 * C[i, j] + w01 * C[i, j1] + w10 * C[i1, j] + w11 * C[i1, j1]
 
 
 def rule_outputs(
@@ -98,10 +120,7 @@ def rule_outputs(
     members, each with its own quantisation factors: one array per output."""
     i, a = locate(rules.pe, e * scale_e)
     j, b = locate(rules.pc, ec * scale_ec)
-    a1, b1 = 1.0 - a, 1.0 - b
-    w00, w01, w10, w11 = a1 * b1, a1 * b, a * b1, a * b
-    i1, j1 = i + 1, j + 1
-    return [w00 * C[i, j] + w01 * C[i, j1] + w10 * C[i1, j] + w11 * C[i1, j1] for C in rules.C]
+    return [rule_cell(C, i, a, j, b) for C in rules.C]
 
 
 def rules_batchable(rules: RuleBase2) -> bool:

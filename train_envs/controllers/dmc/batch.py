@@ -24,7 +24,7 @@ import numpy as np
 
 from train_envs import _jit
 from train_envs.controllers.batch import per_time, resistance_array, rules_batchable
-from train_envs.controllers.dmc.batch_law import COMMAND, PLAN, PREDICT, envelope_constants
+from train_envs.controllers.dmc.batch_law import COMMAND, PLAN, PREDICT
 from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.dmc.qp import UNCONSTRAINED_INFO
 
@@ -33,15 +33,14 @@ __all__ = ["BatchDMC", "batchable_dmc"]
 
 def batchable_dmc(ctrl: DMCController) -> bool:
     """Whether a reset ``ctrl`` has a lockstep twin here: one whole-train input, a
-    time-indexed profile read through its scalar methods, a uniform rule partition, an
-    envelope without effort tables and P ≤ 128 (the stages' pairwise mean)."""
+    time-indexed profile read through its scalar methods, a uniform rule partition and
+    P ≤ 128 (the stages' pairwise mean)."""
     sp = ctrl._setpoint
     return (
         ctrl._single
         and sp.scalar
         and ctrl.rules.single
         and rules_batchable(ctrl.rules)
-        and not ctrl.ctx.train.envelope.tabulated
         and ctrl.P <= 128
     )
 
@@ -95,7 +94,7 @@ class BatchDMC:
         self._a = np.ascontiguousarray(ref.a, dtype=float)
         self._A_dyn = np.ascontiguousarray(ref.A_dyn, dtype=float)
         self._K = np.ascontiguousarray(ref.qp.K, dtype=float)
-        self._env = envelope_constants(ref.ctx.train.envelope)
+        self._envelope = ref.ctx.train.envelope
         level = 1.0 if ref.reference_form == "level" else 0.0
         classic = 1.0 if ref.classic_law else 0.0
         self._cp = np.array([ref.M, float(ref.qp.du_rows), level, classic])
@@ -218,8 +217,11 @@ class BatchDMC:
         w, lo_a, hi_a = np.empty((n, P)), np.empty((n, P)), np.empty((n, P))
         ok = np.empty(n, dtype=bool)
         u_a = np.empty(n)
+        # the envelope at the plan's speeds (the measured one, then the predictions)
+        v_plan = np.concatenate([y[:, None], y_pred[:, :-1]], axis=1)
+        lo, hi = self._envelope.bounds(np.where(v_plan > 0.0, v_plan, 0.0))
         self._plan(
-            ix, y, y0_ref, y_r, ff, u_prev, yP0, y_pred, ai, self._K, self._env, self._cp,
+            ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, self._K, lo, hi, self._cp,
             self.dU_shift, self._dU_last, self._lev_last, self._pending, self._gemv,
             w, lo_a, hi_a, ok, u_a,
         )  # fmt: skip
@@ -230,8 +232,12 @@ class BatchDMC:
             u_a[r], info[r], self.dU_shift[b, :-1] = self._qp_step(
                 b, w[r], yP0[r], float(u_prev[r]), lo_a[r], hi_a[r]
             )
+        if np.all(y >= 0.0):  # |y| is the plan's first speed
+            lo_y, hi_y = np.ascontiguousarray(lo[:, 0]), np.ascontiguousarray(hi[:, 0])
+        else:
+            lo_y, hi_y = self._envelope.bounds(y)
         u = np.empty(n)
-        self._command(ix, u_a, ff, y, u_prev_N, self._env, self._cc, self.ff_prev, u)
+        self._command(ix, u_a, ff, lo_y, hi_y, u_prev_N, self._cc, self.ff_prev, u)
         return u, {
             "alpha": alpha,
             "h_c": h_c,

@@ -14,8 +14,10 @@ signature and the single controller's IEEE operations in the same order:
 
 The matrix-vector products of the loops call numpy's own ``cblas_dgemv``
 (:func:`train_envs._jit.numpy_dgemv`): the sums of ``ndarray.dot``, bit for bit. The
-envelope is :meth:`~train_envs.effort.ForceEnvelope.bounds` without effort tables,
-from the constants :func:`envelope_constants` (NaN: a limit not set).
+envelope's bounds come in as arrays, from :meth:`~train_envs.effort.ForceEnvelope.bounds`
+(the one envelope) evaluated by the caller between the stages; the reference's rule
+base is :func:`~train_envs.controllers.batch.locate_uniform` and
+:func:`~train_envs.controllers.batch.rule_cell`.
 """
 
 from __future__ import annotations
@@ -25,56 +27,15 @@ import math
 import numpy as np
 
 from train_envs import _jit
+from train_envs.controllers.batch import locate_uniform, rule_cell
 from train_envs.controllers.fuzzy import trapmf
-from train_envs.effort import ForceEnvelope
 from train_envs.plants.energy import np_sum
 
-__all__ = ["COMMAND", "PLAN", "PREDICT", "envelope_constants"]
+__all__ = ["COMMAND", "PLAN", "PREDICT"]
 
 PREDICT = "controllers.dmc_batch_predict"
 PLAN = "controllers.dmc_batch_plan"
 COMMAND = "controllers.dmc_batch_command"
-
-
-def envelope_constants(env: ForceEnvelope) -> np.ndarray:
-    """``[F, P, MA, a, b, c, F_b, P_b, F_fr, MD]`` of an envelope without effort tables."""
-    if env.tabulated:
-        raise ValueError("envelope: the lockstep DMC needs an envelope without effort tables")
-    F, _, P, MA, a, b, c = env._t
-    Fb, _, Pb, Ffr, MD = env._b
-    nan = math.nan
-    vals = [F, P, MA, a, b, c, Fb, Pb, Ffr, MD]
-    return np.array([nan if x is None else float(x) for x in vals])
-
-
-# ------------------------------------------------------------------ numpy references
-def _bounds_arrays(ec: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    F, P, MA, a, b, c, Fb, Pb, Ffr, MD = ec.tolist()
-    av = np.abs(v)
-    pos = av > 0
-    hi = np.full(av.shape, F)
-    if P == P:
-        hi = np.minimum(hi, np.divide(P, av, out=np.full(av.shape, np.inf), where=pos))
-    if MA == MA:
-        hi = np.minimum(hi, MA + np.where(pos, a + b * av + c * (av * av), 0.0))
-    lo = np.full(av.shape, Fb)
-    if Pb == Pb:
-        lo = np.minimum(lo, np.divide(Pb, av, out=np.full(av.shape, np.inf), where=pos))
-    lo += Ffr
-    if MD == MD:
-        lo = np.minimum(lo, MD)
-    return -lo, hi
-
-
-def _locate(x: np.ndarray, lo: float, h: float, n: int, hi: float):
-    f = (x - lo) / h
-    i = np.minimum(np.where(f > 0.0, f, 0.0).astype(np.int64), n - 2)
-    w = np.minimum(1.0, f - i)
-    below, above = x <= lo, x >= hi
-    return (
-        np.where(below, 0, np.where(above, n - 2, i)),
-        np.where(below, 0.0, np.where(above, 1.0, w)),
-    )
 
 
 def predict_ref(
@@ -97,11 +58,9 @@ def predict_ref(
     edot = eo + kf * ((e - ep) / dt - eo)
     edot_s[ix] = edot
     e_prev[ix] = e
-    i, wa = _locate(e * par[0, ix], rc[0], rc[1], int(rc[2]), rc[3])
-    j, wb = _locate(edot * par[1, ix], rc[4], rc[5], int(rc[6]), rc[7])
-    a1, b1 = 1.0 - wa, 1.0 - wb
-    w00, w01, w10, w11 = a1 * b1, a1 * wb, wa * b1, wa * wb
-    dh = w00 * Ch[i, j] + w01 * Ch[i, j + 1] + w10 * Ch[i + 1, j] + w11 * Ch[i + 1, j + 1]
+    i, wa = locate_uniform(e * par[0, ix], rc[0], rc[1], int(rc[2]), rc[3])
+    j, wb = locate_uniform(edot * par[1, ix], rc[4], rc[5], int(rc[6]), rc[7])
+    dh = rule_cell(Ch, i, wa, j, wb)
     h_c = par[2, ix] + par[3, ix] * dh
     h_c = np.where(h_min > h_c, h_min, h_c)
     h_c = np.where(1.0 < h_c, 1.0, h_c)
@@ -157,21 +116,19 @@ def predict_ref(
 
 
 def plan_ref(
-    ix, y, y0_ref, y_r, ff, u_prev, yP0, y_pred, ai, K, ec, cp, dU_shift, dU_last, lev_last,
+    ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, K, lo, hi, cp, dU_shift, dU_last, lev_last,
     pending, gemv, w_o, lo_a_o, hi_a_o, ok_o, u_a_o,
 ) -> None:  # fmt: skip
-    """Stage 2: ``cp`` = M, the rate box, level form (1/0), classic law (1/0)."""
+    """Stage 2: ``lo``, ``hi`` the envelope's bounds [N] at the plan's speeds (one row
+    per member); ``cp`` = M, the rate box, level form (1/0), classic law (1/0)."""
     M, du_rows, level, classic = cp.tolist()
     P, L = y_r.shape[1], K.shape[0]
     if level:
         w = ai * y[:, None] + (1.0 - ai) * y_r
     else:
         w = y_r - ai * (y0_ref - y)[:, None]
-    v_plan = np.concatenate([y[:, None], y_pred[:, :-1]], axis=1)
-    v_plan = np.where(v_plan > 0.0, v_plan, 0.0)
     dU = np.array([K.dot(x) for x in w - yP0]).reshape(-1, L)
     lev = np.cumsum(dU, axis=1) + u_prev[:, None]
-    lo, hi = _bounds_arrays(ec, v_plan)
     levels = np.concatenate([lev, np.repeat(lev[:, -1:], P - L, axis=1)], axis=1)
     lo_a = (lo - ff[:, None]) / M
     hi_a = (hi - ff[:, None]) / M
@@ -196,13 +153,13 @@ def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.where(hi < x, hi, x)
 
 
-def command_ref(ix, u_a, ff, y, u_prev_N, ec, cc, ff_prev, u_o) -> None:
-    """Stage 3: ``cc`` = M, the jerk bound per step, the rate bound per step (NaN: none)."""
+def command_ref(ix, u_a, ff, lo, hi, u_prev_N, cc, ff_prev, u_o) -> None:
+    """Stage 3: ``lo``, ``hi`` the envelope's bounds [N] at the measured speeds; ``cc``
+    = M, the jerk bound per step, the rate bound per step (NaN: none)."""
     M, jerk, du = cc.tolist()
     u = u_a * M + ff
     if jerk == jerk:
         u = _clip(u, u_prev_N - jerk, u_prev_N + jerk)
-    lo, hi = _bounds_arrays(ec, y)
     u = _clip(u, lo, hi)
     if du == du:
         u = _clip(u, u_prev_N - du, u_prev_N + du)
@@ -211,25 +168,6 @@ def command_ref(ix, u_a, ff, y, u_prev_N, ec, cc, ff_prev, u_o) -> None:
 
 
 # ------------------------------------------------------------------ compiled sources
-def _bounds(ec, v):
-    av = abs(v)
-    hi = ec[0]
-    if ec[1] == ec[1]:
-        x = ec[1] / av if av > 0 else np.inf
-        hi = x if x < hi else hi
-    if ec[2] == ec[2]:
-        x = ec[2] + ((ec[3] + ec[4] * av) + ec[5] * (av * av) if av > 0 else 0.0)
-        hi = x if x < hi else hi
-    lo = ec[6]
-    if ec[7] == ec[7]:
-        x = ec[7] / av if av > 0 else np.inf
-        lo = x if x < lo else lo
-    lo = lo + ec[8]
-    if ec[9] == ec[9]:
-        lo = ec[9] if ec[9] < lo else lo
-    return -lo, hi
-
-
 def _locate1(x, lo, h, n, hi):
     if x <= lo:
         return 0, 0.0
@@ -340,7 +278,7 @@ def predict_loop(
 
 
 def plan_loop(
-    ix, y, y0_ref, y_r, ff, u_prev, yP0, y_pred, ai, K, ec, cp, dU_shift, dU_last, lev_last,
+    ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, K, lo, hi, cp, dU_shift, dU_last, lev_last,
     pending, gemv, w_o, lo_a_o, hi_a_o, ok_o, u_a_o,
 ) -> None:  # fmt: skip
     """:func:`plan_ref` member by member (the source of its compiled twin)."""
@@ -373,11 +311,8 @@ def plan_loop(
         m = mx if mx > -mn else -mn
         ok = m <= du_rows
         for k in range(P):
-            vp = yv if k == 0 else y_pred[r, k - 1]
-            vp = vp if vp > 0.0 else 0.0
-            lo, hi = _bounds(ec, vp)
-            la = (lo - ff[r]) / M
-            ha = (hi - ff[r]) / M
+            la = (lo[r, k] - ff[r]) / M
+            ha = (hi[r, k] - ff[r]) / M
             lo_a_o[r, k] = la
             hi_a_o[r, k] = ha
             lv = lev[k] if k < L else lev[L - 1]
@@ -394,24 +329,23 @@ def plan_loop(
         u_a_o[r] = lev[0]
 
 
-def command_loop(ix, u_a, ff, y, u_prev_N, ec, cc, ff_prev, u_o) -> None:
+def command_loop(ix, u_a, ff, lo, hi, u_prev_N, cc, ff_prev, u_o) -> None:
     """:func:`command_ref` member by member (the source of its compiled twin)."""
     M, jerk, du = cc[0], cc[1], cc[2]
     for r in range(ix.shape[0]):
         u = u_a[r] * M + ff[r]
         if jerk == jerk:
-            lo = u_prev_N[r] - jerk
-            hi = u_prev_N[r] + jerk
-            u = lo if lo > u else u
-            u = hi if hi < u else u
-        lo, hi = _bounds(ec, y[r])
-        u = lo if lo > u else u
-        u = hi if hi < u else u
+            j_lo = u_prev_N[r] - jerk
+            j_hi = u_prev_N[r] + jerk
+            u = j_lo if j_lo > u else u
+            u = j_hi if j_hi < u else u
+        u = lo[r] if lo[r] > u else u
+        u = hi[r] if hi[r] < u else u
         if du == du:
-            lo = u_prev_N[r] - du
-            hi = u_prev_N[r] + du
-            u = lo if lo > u else u
-            u = hi if hi < u else u
+            d_lo = u_prev_N[r] - du
+            d_hi = u_prev_N[r] + du
+            u = d_lo if d_lo > u else u
+            u = d_hi if d_hi < u else u
         ff_prev[ix[r]] = ff[r]
         u_o[r] = u
 
@@ -427,5 +361,5 @@ _jit.register(
     helpers={"_locate1": _locate1, "_trap": _trap, "np_sum": np_sum},
     available=_has_dgemv,
 )
-_jit.register(PLAN, plan_ref, source=plan_loop, helpers={"_bounds": _bounds}, available=_has_dgemv)
-_jit.register(COMMAND, command_ref, source=command_loop, helpers={"_bounds": _bounds})
+_jit.register(PLAN, plan_ref, source=plan_loop, available=_has_dgemv)
+_jit.register(COMMAND, command_ref, source=command_loop)
