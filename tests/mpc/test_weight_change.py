@@ -171,7 +171,7 @@ def test_rsmpc_closed_forms_after_random_actions_equal_cold_ones():
             if warm is False:
                 continue
             prob.frames = None
-            cold = make_closed_form(prob, ctrl._layout, ctrl._s_max)
+            cold = make_closed_form(prob, ctrl._layout)
             for k in ("cols", "T", "b"):
                 np.testing.assert_array_equal(getattr(warm, k), getattr(cold, k), err_msg=k)
             assert (warm.Umap is None) == (cold.Umap is None)

@@ -22,13 +22,12 @@ from typing import Protocol
 import numpy as np
 
 from train_envs.controllers.batch import per_time
-from train_envs.lines.limits import effective_limit_fn
 from train_envs.plants.batch import BatchSingleCar
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.multi_car import TrainPlant
 from train_envs.scenarios import Scenario
 from train_envs.simulation.loop import INFO_COLUMNS, scenario_metrics
-from train_envs.simulation.supervision import Supervision
+from train_envs.simulation.supervision import Supervision, permitted_speed_fn
 
 __all__ = ["BatchController", "BatchLoop"]
 
@@ -91,7 +90,7 @@ class BatchLoop:
         self._braking = np.zeros(B, dtype=bool)
         self.atp_interventions = np.zeros(B, dtype=np.int64)
         self._window = sc.stop_window()
-        self._limit = effective_limit_fn(sc.track, sc.train.length_m)
+        self._limit = permitted_speed_fn(sc)
         self._grad = gradient_table(sc.track)
         # one (steps, columns, members) table: the runner's columns, then INFO_COLUMNS
         self._table = np.full((self.n_max, len(_COLUMNS) + len(INFO_COLUMNS), B), np.nan)

@@ -140,7 +140,7 @@ def _theta_to_h(prob: TubeProblem, layout: StageLayout, maps: ResidualMaps) -> n
     return layout.fold(Gg)
 
 
-def _frame(prob: TubeProblem, layout: StageLayout, s_max: float) -> Frame | None:
+def _frame(prob: TubeProblem, layout: StageLayout) -> Frame | None:
     """The problem's :class:`Frame` for its current pinned pattern (kept on the problem
     per pattern: the tightening of a larger W pins more increments); None when the core
     has no closed form (sparse form, not one decision per stage)."""
@@ -191,7 +191,7 @@ def _frame(prob: TubeProblem, layout: StageLayout, s_max: float) -> Frame | None
             adj[tr[nt:], XS + 4 * steps + 1] += 1.0
             adj[tr[nt:], VL + steps] -= 1.0
     C_h = Bc @ GF + layout.fold(adj)
-    z_, s_, v_, u_, t_ = (np.arange(k * Np, (k + 1) * Np) for k in range(5))
+    z_, s_, v_, u_ = (np.arange(k * Np, (k + 1) * Np) for k in range(4))
     t_ = np.arange(4 * Np, 4 * Np + nb)
     vl_ = vl + np.arange(Np)
     # rows "row <= b": z (upper), −z, s, −v, v − v_lim, −u, u, terminal
@@ -264,7 +264,7 @@ def _terminal_factor(P: np.ndarray) -> np.ndarray:
         return _psd_sqrt(P)
 
 
-def make_closed_form(prob: TubeProblem, layout: StageLayout, s_max: float) -> ClosedForm | bool:
+def make_closed_form(prob: TubeProblem, layout: StageLayout) -> ClosedForm | bool:
     """Compose the problem's unconstrained optimum for its current weights (``prob.coef``,
     ``prob.P_core``) with the stage vector of :mod:`.stage` and the rows the QP sets.
 
@@ -272,12 +272,12 @@ def make_closed_form(prob: TubeProblem, layout: StageLayout, s_max: float) -> Cl
     (held stages pinned at 0), per stage ``s + s_o <= s_max − τ_s``, ``v >= v_min``,
     ``v − v_lim <= −τ_v``, ``u_lo + τ_u <= u <= u_hi − τ_u``, and the terminal rows
     ``h A_cl^t ξ_N − h ξ_s,N + (s_o + s_r,N+t | v_r,N+t − v_lim,N+t) <= (s_max | 0) −
-    τ_N+t``.  False when the core has no closed form for this problem (or ``H`` does
-    not invert to 1e-9).
+    τ_N+t`` (their bounds: ``prob.cf_bounds``, made with the tightening).  False when the
+    core has no closed form for this problem (or ``H`` does not invert to 1e-9).
     """
     if prob.du is None:
         return False
-    fr = _frame(prob, layout, s_max)
+    fr = _frame(prob, layout)
     if fr is None:
         return False
     c = prob.coef

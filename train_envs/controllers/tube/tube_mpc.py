@@ -460,7 +460,7 @@ class TubeMPC(Controller):
         e = prob.explicit
         if e is None:
             with single_thread_blas():
-                e = prob.explicit = make_closed_form(prob, self._layout, self._s_max)
+                e = prob.explicit = make_closed_form(prob, self._layout)
         return e
 
     def _closed_form(self, prob: TubeProblem, h: np.ndarray) -> tuple[float, bool] | None:
