@@ -61,9 +61,6 @@ def effective_limit_sections(
 _TABLES: dict[tuple[int, float], tuple[object, tuple[np.ndarray, np.ndarray], Callable]] = {}
 
 
-_POINT: dict[int, tuple[object, Callable]] = {}
-
-
 def _entry(track: _HasLimits, length_m: float):
     key = (id(track), float(length_m))
     hit = _TABLES.get(key)
@@ -106,15 +103,6 @@ def effective_limit_at(track: _HasLimits, length_m: float, s):
 def effective_limit_fn(track: _HasLimits, length_m: float) -> Callable:
     """The function ``s ↦ V_L(s)`` (floats and arrays; cached per track and length);
     for a point train the same values as the track's own ``speed_limit_at``."""
-    if length_m == 0.0:  # the track's own sections, as one bound step function
-        key = id(track)
-        hit = _POINT.get(key)
-        if hit is None or hit[0] is not track:
-            if len(_POINT) > 256:
-                _POINT.clear()
-            fn = _step_function(track.speed_limit_positions_m, track.speed_limits_mps)
-            _POINT[key] = hit = (track, fn)
-        return hit[1]
     return _entry(track, length_m)[2]
 
 

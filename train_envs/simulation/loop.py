@@ -30,7 +30,6 @@ from train_envs.simulation.supervision import (
     coupler_excess,
     overrun_m,
     permitted_speed_fn,
-    permitted_speed_mps,
 )
 
 #: the runner's safety columns (see :mod:`.supervision`; the last one: multi-car runs)
@@ -338,6 +337,7 @@ class ClosedLoop:
             return {name: arr[:k].copy() for name, arr in cols.items()}
         obs = self.observe()
         sc = self.scenario
+        limit = self._limit_at(obs.s_m)
         last = dict(
             t_s=obs.t_s,
             s_m=obs.s_m,
@@ -345,15 +345,15 @@ class ClosedLoop:
             a_mps2=obs.a_mps2,
             v_ref_mps=sc.reference.v_ref(obs.t_s, obs.s_m),
             s_ref_m=sc.reference.s_ref(obs.t_s),
-            v_limit_mps=permitted_speed_mps(sc, obs.s_m),
-            gradient_permil=sc.gradient_at(obs.s_m),
+            v_limit_mps=limit,
+            gradient_permil=self._gradient_at(obs.s_m),
             u_cmd_N=float(np.sum(self.u_prev)),
             u_N=float(np.sum(obs.forces_N)),
             work_traction_J=self.plant.work_traction_J,
             work_brake_J=self.plant.work_brake_J,
             saturated=0.0,
             atp_brake=0.0,
-            overspeed_mps=max(obs.v_mps - permitted_speed_mps(sc, obs.s_m), 0.0),
+            overspeed_mps=max(obs.v_mps - limit, 0.0),
             overrun_m=overrun_m(obs.s_m, sc.s_stop_m, self._window),
         )
         if self.plant.n > 1:

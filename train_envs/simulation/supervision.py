@@ -73,7 +73,7 @@ class Supervision:
 def permitted_speed_mps(scenario: Scenario, s_m: float) -> float:
     """The permitted speed [m/s] for the train whose head is at ``s_m``: the track's
     speed limit there (the one limit query of the runner, its record and the ATP)."""
-    return scenario.speed_limit_at(s_m)
+    return float(permitted_speed_fn(scenario)(s_m))
 
 
 def permitted_speed_fn(scenario: Scenario) -> Callable[[float], float]:
