@@ -17,7 +17,6 @@ from train_envs import _jit
 from train_envs.controllers import make_controller
 from train_envs.controllers.batch import BatchFuzzyPID, BatchPID
 from train_envs.controllers.dmc.batch import BatchDMC
-from train_envs.controllers.dmc.batch_law import COMMAND, PLAN, PREDICT
 from train_envs.envs.batch import evaluate_env_params_batch, supports_batch
 from train_envs.envs.evaluation import evaluate_env_params
 from train_envs.plants.batch import BATCH_CAR_STEP, BatchSingleCar
@@ -118,11 +117,8 @@ def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list, compil
     pool = _members(ctrl_name, sc, [{}] * len(params_list), **kw)
     qp_steps = []
     if ctrl_name == "dmc":
-        ctrl = BatchDMC(ref, full, pool.__getitem__)
-        # the DMC's three stages: compiled twins or numpy references (the public switch)
-        ctrl._predict = _jit.implementation(PREDICT, compiled_twin=compiled)
-        ctrl._plan = _jit.implementation(PLAN, compiled_twin=compiled)
-        ctrl._command = _jit.implementation(COMMAND, compiled_twin=compiled)
+        # the DMC's three stages: compiled twins or numpy references
+        ctrl = BatchDMC(ref, full, pool.__getitem__, compiled_twin=compiled)
         orig = ctrl._qp_step
         ctrl._qp_step = lambda b, *a: (qp_steps.append(b), orig(b, *a))[1]
     else:

@@ -129,6 +129,9 @@ class Controller:
     name: str = "controller"
     #: tunable parameters; subclasses override
     PARAMS: tuple[TunableParam, ...] = ()
+    #: when a parameter change acts, where not at the next control step (the env contract
+    #: pages print it; None: at the next control step)
+    PARAMS_TAKE_EFFECT: str | None = None
     #: whether data the controller keeps across :meth:`reset` (e.g. a QP built once)
     #: was formed with the parameters of an earlier episode, so that only a new
     #: controller equals a fresh one bit for bit; a reused env then rebuilds it

@@ -218,7 +218,7 @@ def _page(env_id: str, env: Any) -> str:
             + ", ".join(f"`{n}`" for n in st.action.bounds)
             + " (`action_bounds`; the table shows the narrowed range).",
         ]
-    timing = getattr(type(base.controller), "PARAMS_TAKE_EFFECT", None)
+    timing = base.controller.PARAMS_TAKE_EFFECT
     if timing:
         L += ["", "When a new action takes effect: " + timing]
     fixed = {k: v for k, v in defaults.items() if k not in {p.name for p in specs}}

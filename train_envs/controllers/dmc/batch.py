@@ -53,6 +53,9 @@ class BatchDMC:
         params: each member's full parameter values (``ref.get_params()`` form).
         qp_pool: callable ``b -> DMCController`` giving member ``b``'s own controller for
             its QP steps (reset on the context before its first QP of an episode).
+        compiled_twin: the stages of :mod:`.batch_law` compiled (True), their numpy
+            references (False) or the process's choice (None,
+            :func:`train_envs._jit.implementation`).
     """
 
     def __init__(
@@ -60,6 +63,7 @@ class BatchDMC:
         ref: DMCController,
         params: Sequence[Mapping[str, float]],
         qp_pool: Any,
+        compiled_twin: bool | None = None,
     ) -> None:
         if not batchable_dmc(ref):
             raise ValueError("this DMC configuration has no lockstep twin (see batchable_dmc)")
@@ -70,9 +74,9 @@ class BatchDMC:
         self._qp_pool = qp_pool
         self._steps = np.arange(1, ref.P + 1)
         self._constants()
-        self._predict = _jit.implementation(PREDICT)
-        self._plan = _jit.implementation(PLAN)
-        self._command = _jit.implementation(COMMAND)
+        self._predict = _jit.implementation(PREDICT, compiled_twin=compiled_twin)
+        self._plan = _jit.implementation(PLAN, compiled_twin=compiled_twin)
+        self._command = _jit.implementation(COMMAND, compiled_twin=compiled_twin)
         self._gemv = _jit.numpy_dgemv()
         self.reset()
 
