@@ -117,7 +117,7 @@ class _TrainMPCBase(Controller):
         if not self.terminal:
             return None
         C = self._C
-        _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R)
+        _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R, gain=False)
         return P
 
     def _on_params_changed(self) -> None:

@@ -19,6 +19,7 @@ a new setup; the weight-independent part (prediction matrices, constraint rows o
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -41,6 +42,38 @@ def _memo_put(memo: dict, key: object, value: np.ndarray) -> np.ndarray:
     return value
 
 
+#: largest diagonal weight whose factor :func:`_diagonal_sqrt` forms without LAPACK
+_DIAG_SQRT_MAX = 25
+
+
+def _diagonal_sqrt(d: np.ndarray) -> np.ndarray:
+    """The factor ``numpy.linalg.eigh`` gives :func:`_psd_sqrt` for ``diag(d)``, without it.
+
+    For a diagonal matrix of order n <= 25 LAPACK's ``dsyevd`` (through ``dstedc`` and
+    ``dsteqr``) leaves the eigenvalues in place with unit eigenvectors and only orders
+    them, by a selection sort that swaps the first strictly smaller value found in each
+    pass; this replays that sort, so the rows (and their order among equal weights) are
+    the same numbers as the ``eigh`` path's, at a fraction of its cost.
+    """
+    n = d.size
+    lam = d.tolist()
+    perm = list(range(n))
+    for i in range(n - 1):
+        k, p = i, lam[i]
+        for j in range(i + 1, n):
+            if lam[j] < p:
+                k, p = j, lam[j]
+        if k != i:
+            lam[k], lam[i] = lam[i], p
+            perm[i], perm[k] = perm[k], perm[i]
+    top = max(1.0, max((abs(x) for x in lam), default=0.0))
+    rows = [r for r in range(n) if lam[r] > 1e-14 * top]
+    L = np.zeros((len(rows), n))
+    for i, r in enumerate(rows):
+        L[i, perm[r]] = math.sqrt(lam[r])
+    return L
+
+
 def _psd_sqrt(W: np.ndarray) -> np.ndarray:
     """Return L with L.T @ L == W for a symmetric PSD W (rows of zero weight dropped;
     remembered per value: a family of problems shares its weights)."""
@@ -48,9 +81,19 @@ def _psd_sqrt(W: np.ndarray) -> np.ndarray:
     hit = _SQRT.get(key)
     if hit is not None:
         return hit
+    n = W.shape[0]
+    if 0 < n <= _DIAG_SQRT_MAX:
+        d = W.diagonal()
+        if np.count_nonzero(W) == np.count_nonzero(d):
+            return _memo_put(_SQRT, key, _diagonal_sqrt(d))
     lam, V = np.linalg.eigh(W)
+    return _memo_put(_SQRT, key, _eigh_sqrt(lam, V))
+
+
+def _eigh_sqrt(lam: np.ndarray, V: np.ndarray) -> np.ndarray:
+    """The factor of :func:`_psd_sqrt` from ``eigh``'s ``(lam, V)``."""
     keep = lam > 1e-14 * max(1.0, float(np.max(np.abs(lam), initial=0.0)))
-    return _memo_put(_SQRT, key, np.sqrt(lam[keep])[:, None] * V[:, keep].T)
+    return np.sqrt(lam[keep])[:, None] * V[:, keep].T
 
 
 def _checked_weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
@@ -60,35 +103,61 @@ def _checked_weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
         return _weight(name, value, dim)
     if value.shape != (dim, dim):
         return _weight(name, value, dim)
+    if dim:
+        # a diagonal weight with a finite non-negative diagonal (the controllers' weights at
+        # every change): _weight's result is a copy of it, without the symmetry and
+        # eigenvalue checks
+        d = value.diagonal()
+        if np.count_nonzero(value) == np.count_nonzero(d) and math.isfinite(d.sum()):
+            if d.min() >= 0.0:
+                return value.copy()
     key = (name, value.tobytes())
     hit = _CHECKED.get(key)
     if hit is not None:
         return hit
+    if dim and np.isfinite(value).all():
+        # a full weight (a Riccati terminal cost): _weight's checks with one eigh whose
+        # factor _psd_sqrt then finds remembered; anything it would refuse goes to it
+        scale = max(1.0, float(np.max(np.abs(value))))
+        if float(np.max(np.abs(value - value.T))) <= 1e-9 * scale:
+            w = 0.5 * (value + value.T)
+            lam, V = np.linalg.eigh(w)
+            if lam[0] >= -1e-10 * scale:
+                _memo_put(_SQRT, w.tobytes(), _eigh_sqrt(lam, V))
+                return _memo_put(_CHECKED, key, w)
     return _memo_put(_CHECKED, key, _weight(name, value, dim))
 
 
-def _scaled_blocks(D: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """``np.kron(D, X)`` for a diagonal ``D``: the blocks ``D_ii X`` on the diagonal (the
-    same products, without kron's general machinery; called at every weight change)."""
-    k = D.shape[0]
-    r, c = X.shape
-    out = np.zeros((k, r, k, c))
-    i = np.arange(k)
-    out[i, :, i, :] = np.diag(D)[:, None, None] * X
-    return out.reshape(k * r, k * c)
+def _stage_weights(
+    blocks: list[tuple[np.ndarray | None, int, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The block-diagonal residual weight ``W`` and its factor ``Lw`` (``LwᵀLw = W``).
 
-
-def _block_diag(parts: list[np.ndarray]) -> np.ndarray:
-    """``scipy.linalg.block_diag`` of 2-D arrays (without its argument handling)."""
-    rows = sum(a.shape[0] for a in parts)
-    cols = sum(a.shape[1] for a in parts)
-    out = np.zeros((rows, cols))
+    ``blocks``: ``(scales, k, X)`` per weighted residual, ``X`` repeated on ``k`` stages,
+    stage ``t`` scaled by ``scales[t]`` (``None``: 1) and its factor rows by
+    ``sqrt(scales[t])`` -- ``block_diag(kron(diag(scales), X), ...)`` filled in place.
+    """
+    facs = [_psd_sqrt(X) for _, _, X in blocks]
+    W = np.zeros((sum(k * X.shape[0] for _, k, X in blocks),) * 2)
+    n_rows = sum(k * L.shape[0] for (_, k, _), L in zip(blocks, facs, strict=True))
+    Lw = np.zeros((n_rows, W.shape[0]))
     r = c = 0
-    for a in parts:
-        out[r : r + a.shape[0], c : c + a.shape[1]] = a
-        r += a.shape[0]
-        c += a.shape[1]
-    return out
+    for (scales, k, X), L in zip(blocks, facs, strict=True):
+        d, rl = X.shape[0], L.shape[0]
+        if scales is None:
+            for _ in range(k):
+                W[c : c + d, c : c + d] = X
+                Lw[r : r + rl, c : c + d] = L
+                r += rl
+                c += d
+        else:
+            roots = np.sqrt(scales).tolist()
+            for t, s_t in enumerate(scales.tolist()):
+                W[c : c + d, c : c + d] = s_t * X
+                Lw[r : r + rl, c : c + d] = roots[t] * L
+                r += rl
+                c += d
+    return W, Lw
 
 
 @dataclass(frozen=True)
@@ -371,22 +440,12 @@ class _AssemblyMixin:
 
         # weights W of the residuals (per-stage scales: ``stage_scales``) -----------------
         sQ, sR, sS = self._stage_scales
-        DQ = np.eye(Np) if sQ is None else np.diag(sQ)
-        DR = np.eye(Nc) if sR is None else np.diag(sR)
-        DS = np.eye(Np) if sS is None else np.diag(sS)
-        W_parts = [_scaled_blocks(DQ, self._Q), _scaled_blocks(DR, self._R)]
-        L_parts = [
-            _scaled_blocks(np.sqrt(DQ), _psd_sqrt(self._Q)),
-            _scaled_blocks(np.sqrt(DR), _psd_sqrt(self._R)),
-        ]
+        blocks = [(sQ, Np, self._Q), (sR, Nc, self._R)]
         if self._S is not None:
-            W_parts.append(_scaled_blocks(DS, self._S))
-            L_parts.append(_scaled_blocks(np.sqrt(DS), _psd_sqrt(self._S)))
+            blocks.append((sS, Np, self._S))
         if self._P is not None:
-            W_parts.append(self._P)
-            L_parts.append(_psd_sqrt(self._P))
-        W = _block_diag(W_parts)
-        Lw = _block_diag(L_parts)
+            blocks.append((None, 1, self._P))
+        W, Lw = _stage_weights(blocks)
         self._Lw = Lw
         self._lw_ez = None
         self._condensed_src = (Ez, Eth, W, Lw)

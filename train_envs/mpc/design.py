@@ -115,12 +115,13 @@ def zoh(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarr
 
 
 def augmented_terminal_cost(
-    A: np.ndarray, B: np.ndarray, Qx: np.ndarray, R: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    A: np.ndarray, B: np.ndarray, Qx: np.ndarray, R: np.ndarray, *, gain: bool = True
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Riccati terminal cost of the Δu-augmented model ξ = [x; u(k−1)].
 
     Returns ``(P_aug, K, P_x)``: the full (n+m)² solution, the LQR gain of
-    ``Δu = −K ξ`` and the x-block used as the core's state terminal weight.
+    ``Δu = −K ξ`` (``None`` with ``gain=False``: a weight change that needs only the
+    cost skips its solve) and the x-block used as the core's state terminal weight.
     """
     n, m = B.shape
     Aa = np.zeros((n + m, n + m))
@@ -140,7 +141,7 @@ def augmented_terminal_cost(
     except np.linalg.LinAlgError:
         P = solve_discrete_are(Aa, Ba, Qa, R)
     P = 0.5 * (P + P.T)
-    K = np.linalg.solve(R + Ba.T @ P @ Ba, Ba.T @ P @ Aa)
+    K = np.linalg.solve(R + Ba.T @ P @ Ba, Ba.T @ P @ Aa) if gain else None
     return P, K, P[:n, :n].copy()
 
 
