@@ -128,22 +128,72 @@ def _checked_weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
     return _memo_put(_CHECKED, key, _weight(name, value, dim))
 
 
-def _stage_weights(
-    blocks: list[tuple[np.ndarray | None, int, np.ndarray]],
-) -> tuple[np.ndarray, np.ndarray]:
+class _ResidualWeight:
     """The block-diagonal residual weight ``W`` and its factor ``Lw`` (``LwᵀLw = W``).
 
-    ``blocks``: ``(scales, k, X)`` per weighted residual, ``X`` repeated on ``k`` stages,
-    stage ``t`` scaled by ``scales[t]`` (``None``: 1) and its factor rows by
-    ``sqrt(scales[t])`` -- ``block_diag(kron(diag(scales), X), ...)`` filled in place.
+    Products with them take the exact shortcuts their structure allows when every block
+    but (possibly) the last is diagonal (the stage weights; the last a full terminal
+    cost): the diagonal part of ``W`` scales columns (``X @ W``) and its factor rows, one
+    entry each, scale and pick rows (``Lw @ Y``); the full block multiplies only its own
+    rows and columns. Each entry of such a product has the dense product's non-zero
+    terms in the same order, so the shortcut gives the dense product's numbers.
     """
+
+    __slots__ = ("W", "Lw", "_d", "_rows", "_full")
+
+    def __init__(self, W: np.ndarray, Lw: np.ndarray, full: tuple[int, int] | None) -> None:
+        """``full``: ``(first column, first factor row)`` of a trailing full block, or None
+        when every block is diagonal."""
+        self.W, self.Lw = W, Lw
+        c0, r0 = full if full is not None else (W.shape[0], Lw.shape[0])
+        self._full = full
+        self._d = W.diagonal().copy()
+        self._d[c0:] = 0.0
+        cols = np.argmax(Lw[:r0, :c0] != 0.0, axis=1)
+        self._rows = (cols, Lw[np.arange(r0), cols])
+
+    def right(self, X: np.ndarray) -> np.ndarray:
+        """``X @ W``."""
+        out = np.multiply(X, self._d, order="C")
+        if self._full is not None:
+            c0 = self._full[0]
+            out[:, c0:] = X[:, c0:] @ self.W[c0:, c0:]
+        return out
+
+    def factor(self, Y: np.ndarray) -> np.ndarray:
+        """``Lw @ Y``."""
+        cols, vals = self._rows
+        head = vals[:, None] * Y[cols]
+        if self._full is None:
+            return head
+        c0, r0 = self._full
+        return np.vstack([head, self.Lw[r0:, c0:] @ Y[c0:]])
+
+
+def _stage_weights(
+    blocks: list[tuple[np.ndarray | None, int, np.ndarray]],
+) -> _ResidualWeight | _DenseResidualWeight:
+    """The residual weight of ``blocks``: ``(scales, k, X)`` per weighted residual, ``X``
+    repeated on ``k`` stages, stage ``t`` scaled by ``scales[t]`` (``None``: 1) and its
+    factor rows by ``sqrt(scales[t])`` -- ``block_diag(kron(diag(scales), X), ...)``
+    filled in place."""
     facs = [_psd_sqrt(X) for _, _, X in blocks]
     W = np.zeros((sum(k * X.shape[0] for _, k, X in blocks),) * 2)
     n_rows = sum(k * L.shape[0] for (_, k, _), L in zip(blocks, facs, strict=True))
     Lw = np.zeros((n_rows, W.shape[0]))
     r = c = 0
+    diagonal = [np.count_nonzero(X) == np.count_nonzero(X.diagonal()) for _, _, X in blocks]
+    full = None
+    if not all(diagonal[:-1]):
+        kind = "dense"  # a full stage weight: the dense products
+    elif not diagonal[-1]:
+        kind = "last"
+    else:
+        kind = "diagonal"
     for (scales, k, X), L in zip(blocks, facs, strict=True):
         d, rl = X.shape[0], L.shape[0]
+        if kind == "last" and X is blocks[-1][2]:
+            full = (c, r)
         if scales is None:
             for _ in range(k):
                 W[c : c + d, c : c + d] = X
@@ -157,7 +207,26 @@ def _stage_weights(
                 Lw[r : r + rl, c : c + d] = roots[t] * L
                 r += rl
                 c += d
-    return W, Lw
+    if kind == "dense":
+        return _DenseResidualWeight(W, Lw)
+    return _ResidualWeight(W, Lw, full)
+
+
+class _DenseResidualWeight:
+    """``W`` and ``Lw`` without structure to exploit: the dense products."""
+
+    __slots__ = ("W", "Lw")
+
+    def __init__(self, W: np.ndarray, Lw: np.ndarray) -> None:
+        self.W, self.Lw = W, Lw
+
+    def right(self, X: np.ndarray) -> np.ndarray:
+        """``X @ W``."""
+        return X @ self.W
+
+    def factor(self, Y: np.ndarray) -> np.ndarray:
+        """``Lw @ Y``."""
+        return self.Lw @ Y
 
 
 @dataclass(frozen=True)
@@ -445,10 +514,10 @@ class _AssemblyMixin:
             blocks.append((sS, Np, self._S))
         if self._P is not None:
             blocks.append((None, 1, self._P))
-        W, Lw = _stage_weights(blocks)
-        self._Lw = Lw
+        wt = _stage_weights(blocks)
+        self._Lw = wt.Lw
         self._lw_ez = None
-        self._condensed_src = (Ez, Eth, W, Lw)
+        self._condensed_src = (Ez, Eth, wt)
         # the sparse form needs the condensed quantities only for the refinement and the
         # fallback: made on first use (:meth:`_condensed_data`)
         self._condensed = None
@@ -472,11 +541,11 @@ class _AssemblyMixin:
             Lth = Lth_c
         else:
             Ew = self._Ew
-            EwW = Ew.T @ W
+            EwW = wt.right(Ew.T)
             Hw = EwW @ Ew
             Pd[:oe, :oe] = 2.0 * np.triu(0.5 * (Hw + Hw.T))
             Hw_q = 2.0 * EwW @ self._Eth_s
-            Lth = Lw @ self._Eth_s
+            Lth = wt.factor(self._Eth_s)
         Pd[oe + sl, oe + sl] = 2.0 * self._gamma_s
         self._P_dense = Pd
 
@@ -503,12 +572,12 @@ class _AssemblyMixin:
         map ``q_z = Fq θ`` and the cost constant's factor (made once per weight change)."""
         c = self._condensed
         if c is None:
-            Ez, Eth, W, Lw = self._condensed_src
-            EzW = Ez.T @ W
+            Ez, Eth, wt = self._condensed_src
+            EzW = wt.right(Ez.T)
             H = EzW @ Ez
             H = 0.5 * (H + H.T)
             Fq = 2.0 * EzW @ Eth  # condensed q_z = Fq theta
-            Lth_c = Lw @ Eth  # condensed cost constant = ||Lth_c theta||^2
+            Lth_c = wt.factor(Eth)  # condensed cost constant = ||Lth_c theta||^2
             c = self._condensed = (H, Fq, Lth_c)
         return c
 
@@ -532,7 +601,7 @@ class _AssemblyMixin:
         if self._sparse:
             return None
         if self._lw_ez is None:
-            self._lw_ez = self._Lw @ self._condensed_src[0]
+            self._lw_ez = self._condensed_src[2].factor(self._condensed_src[0])
         return self._lw_ez
 
     def residual_maps(self) -> ResidualMaps:
