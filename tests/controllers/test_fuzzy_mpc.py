@@ -402,3 +402,48 @@ def test_bad_context_raises(scenario):
     c = FuzzyMPCController(scenario)
     with pytest.raises(ValueError, match="q_dx"):
         c.set_params(q_dx=1e9)
+
+
+def test_a_state_outside_the_ellipsoid_keeps_the_gains_only_on_a_certified_enlargement(ctrl):
+    """The scaled solution (L·Q, L·Y_j, L·γ) satisfies the LMIs with the same gains; it
+    is kept only if the input bound holds on the enlarged ellipsoid."""
+    model = ctrl._model
+    v_r = 50.0
+    x = model.state(np.full(7, 0.01), np.full(8, -3.0))
+    u_bar = np.full(8, 30.0)
+    sol = ctrl.solve_lmi(x, v_r, u_bar)
+    ctrl._sol, ctrl._force_solve, ctrl._fallback = sol, False, False
+    ctrl._v_solve, ctrl._weights_since, ctrl._k, ctrl._k_solve = v_r, None, 0, 0
+    peak = max(
+        np.max(np.einsum("ij,jk,ik->i", model.C_u @ Y, sol.Q_inv, model.C_u @ Y)) for Y in sol.Y
+    )
+    lim = u_bar**2
+    room = float(np.min(lim) / peak)  # largest admissible level
+    assert room > 1.0
+    L = 0.5 * (1.0 + room)
+    xo = x * np.sqrt(L / float(x @ sol.Q_inv @ x))
+    # too far out: a re-solve is due and the cached solution stays as it was
+    assert ctrl._needs_solve(xo * np.sqrt(1.1 * room / L), v_r, u_bar)
+    assert ctrl._sol is sol
+    # within the certified enlargement: no re-solve, same gains, scaled certificate
+    assert not ctrl._needs_solve(xo, v_r, u_bar)
+    new = ctrl._sol
+    assert all(np.array_equal(a, b) for a, b in zip(new.F, sol.F, strict=True))
+    np.testing.assert_allclose(new.Q, L * sol.Q, rtol=1e-12)
+    np.testing.assert_allclose(new.gamma, L * sol.gamma, rtol=1e-12)
+    assert xo @ new.Q_inv @ xo <= 1 + 1e-9
+    A, B = model.rules(v_r, ctrl.memberships.centres)
+    W, R, P = ctrl._W, ctrl._R, new.gamma * np.linalg.inv(new.Q)
+    scale = np.abs(P).max()
+    rng = np.random.default_rng(1)
+    r = len(A)
+    for h in [np.eye(r)[i] for i in range(r)] + [rng.dirichlet(np.ones(r)) for _ in range(10)]:
+        Ah = sum(hi * Ai for hi, Ai in zip(h, A, strict=True))
+        Bh = sum(hi * Bi for hi, Bi in zip(h, B, strict=True))
+        Fh = sum(hi * Fi for hi, Fi in zip(h, new.F, strict=True))
+        Acl = Ah + Bh @ Fh
+        M = Acl.T @ P @ Acl - P + W + Fh.T @ R @ Fh
+        assert np.linalg.eigvalsh(0.5 * (M + M.T)).max() <= 1e-6 * scale
+        # the largest force deviation on the enlarged ellipsoid is within u_bar
+        CF = model.C_u @ Fh
+        assert np.all(np.einsum("ij,jk,ik->i", CF, new.Q, CF) <= lim * (1 + 1e-9))

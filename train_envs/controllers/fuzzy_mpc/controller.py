@@ -11,7 +11,13 @@ force ``u^eq = R_i(v_r) + m_i g θ_i/1000 [+ m_i' a_r]`` (``feedforward="full"``
 reference acceleration for ramp references; ``"resistance"`` is 003 eq. 5).
 
 **When the LMI is re-solved (ours).** (a) the state leaves the cached invariant
-ellipsoid (a reference step); (b) it has shrunk to ``xᵀQ⁻¹x < resolve_shrink``
+ellipsoid (a reference step) further than its gains allow: the cached solution scaled
+by the level L = xᵀQ⁻¹x > 1, (L·Q, L·Y_j, L·γ), satisfies every LMI but the input one
+with the same gains F_j, so if the cached gains keep every car's force deviation within
+the current ū on the enlarged ellipsoid (``L · (C_u F_j Q F_jᵀ C_uᵀ)_ll ≤ ū_l²``) the
+scaled solution is kept instead of a re-solve (invariance and input bound hold, the
+cost bound is L·γ; ``enlarge_outside=False`` re-solves at every departure, as
+``train-envs reproduce paper003`` does); (b) it has shrunk to ``xᵀQ⁻¹x < resolve_shrink``
 (Kothare's receding horizon: a smaller ellipsoid allows stronger gains; not once the
 state is inside the ρ-ball); (c) v_r moved by more than ``resolve_dv_mps`` since the
 last solve (the rule matrices depend on v_r); (d) new weights, see below; (e) every
@@ -123,6 +129,7 @@ class FuzzyMPCController(Controller):
         lmi_period: int = 0,
         resolve_shrink: float = 0.25,
         resolve_dv_mps: float = 1.0,
+        enlarge_outside: bool = True,
         weights_delay_steps: int = 100,
         floor: float = 0.05,
         feedforward: str = "full",
@@ -141,6 +148,8 @@ class FuzzyMPCController(Controller):
         self.n_modes = None if n_modes is None else int(n_modes)
         self.memberships = TriangularMemberships(tuple(centres_mps))
         self.lmi_period = int(lmi_period)
+        #: keep the cached gains on a certified enlargement of the ellipsoid (rule (a))
+        self.enlarge_outside = bool(enlarge_outside)
         if int(weights_delay_steps) != weights_delay_steps or weights_delay_steps < 0:
             raise ValueError(
                 f"weights_delay_steps must be an integer >= 0, got {weights_delay_steps}"
@@ -308,7 +317,43 @@ class FuzzyMPCController(Controller):
             x=np.array(x),
         )
 
-    def _needs_solve(self, x: np.ndarray, v_r: float) -> bool:
+    def _rescale(self, level: float, u_bar: np.ndarray) -> bool:
+        """Enlarge the cached ellipsoid to ``xᵀ Q⁻¹ x = level`` if its gains allow it.
+
+        The LMIs of the pair conditions are homogeneous in (Q, Y_j, γ) and the PDC gains
+        F_j = Y_j Q⁻¹ do not change under (Q, Y_j, γ) → level·(Q, Y_j, γ); Q ⪰ ρ² I holds
+        for level ≥ 1. The input constraint holds on the enlarged ellipsoid iff
+        ``level · (C_u F_j Q F_jᵀ C_uᵀ)_ll ≤ ū_l²`` for every rule j and car l (the squared
+        largest force deviation of car l on it). If so the scaled solution is a feasible
+        point of the LMI at the current state with the same gains, it replaces the cached
+        one (cost bound level·γ) and True is returned: no re-solve is needed.
+        """
+        sol = self._sol
+        if sol is None or sol.status == "lqr_fallback" or not sol.Y:
+            return False
+        Cu = self._model.C_u
+        lim = np.asarray(u_bar, float) ** 2
+        for Y in sol.Y:
+            CY = Cu @ Y
+            peak = np.einsum("ij,jk,ik->i", CY, sol.Q_inv, CY)  # diag(C_u Y Q⁻¹ Yᵀ C_uᵀ)
+            if np.any(level * peak > lim):
+                return False
+        self._sol = LMISolution(
+            gamma=level * sol.gamma,
+            Q=level * sol.Q,
+            Y=[level * Y for Y in sol.Y],
+            F=sol.F,
+            P=sol.P,
+            Q_inv=sol.Q_inv / level,
+            status=sol.status,
+            solve_time_s=sol.solve_time_s,
+            wall_s=sol.wall_s,
+            iterations=sol.iterations,
+            x=sol.x,
+        )
+        return True
+
+    def _needs_solve(self, x: np.ndarray, v_r: float, u_bar: np.ndarray) -> bool:
         sol = self._sol
         if sol is None or self._force_solve:
             return True
@@ -323,7 +368,7 @@ class FuzzyMPCController(Controller):
             return True
         level = float(x @ sol.Q_inv @ x)
         if level > 1.0 + 1e-9:
-            return True
+            return not (self.enlarge_outside and self._rescale(level, u_bar))
         return (
             self.resolve_shrink > 0
             and level < self.resolve_shrink
@@ -342,11 +387,11 @@ class FuzzyMPCController(Controller):
         u_eq = self._equilibrium(obs, v_r, a_r)
         lo, hi = self._bounds(float(obs.speeds_mps[0]))
         info: dict[str, Any] = {"triggered": 0.0, "solve_time_s": 0.0, "iterations": 0.0}
-        if self._needs_solve(x, v_r):
-            room = np.minimum(hi - u_eq, u_eq - lo)
-            if self.u_bound_N is not None:
-                room = np.minimum(room, self.u_bound_N)
-            u_bar = np.maximum(room, 1e3) / 1000.0  # kN, at least 1 kN
+        room = np.minimum(hi - u_eq, u_eq - lo)
+        if self.u_bound_N is not None:
+            room = np.minimum(room, self.u_bound_N)
+        u_bar = np.maximum(room, 1e3) / 1000.0  # kN, at least 1 kN
+        if self._needs_solve(x, v_r, u_bar):
             sol = self.solve_lmi(x, v_r, u_bar)
             self._force_solve = False
             self._weights_since = None
