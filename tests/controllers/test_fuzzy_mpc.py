@@ -99,6 +99,20 @@ def test_full_modal_model_matches_the_error_model(scenario):
 
 
 # ----------------------------------------------------------------------- LMI
+
+
+def _lyapunov_decrease(h, A, B, F, W, R, P, scale):
+    """PDC closed loop at memberships ``h``: asserts ``AclᵀPAcl − P + W + FhᵀRFh ⪯ 0``
+    (to ``1e-6·scale``) and returns ``(Fh, Acl)``."""
+    Ah = sum(hi * Ai for hi, Ai in zip(h, A, strict=True))
+    Bh = sum(hi * Bi for hi, Bi in zip(h, B, strict=True))
+    Fh = sum(hi * Fi for hi, Fi in zip(h, F, strict=True))
+    Acl = Ah + Bh @ Fh
+    M = Acl.T @ P @ Acl - P + W + Fh.T @ R @ Fh
+    assert np.linalg.eigvalsh(0.5 * (M + M.T)).max() <= 1e-6 * scale
+    return Fh, Acl
+
+
 def test_lmi_solution_satisfies_its_constraints(ctrl):
     model = ctrl._model
     v_r = 50.0
@@ -120,13 +134,8 @@ def test_lmi_solution_satisfies_its_constraints(ctrl):
     hs = [np.eye(r)[i] for i in range(r)] + [rng.dirichlet(np.ones(r)) for _ in range(20)]
     scale = np.abs(P).max()
     for h in hs:
-        Ah = sum(hi * Ai for hi, Ai in zip(h, A, strict=True))
-        Bh = sum(hi * Bi for hi, Bi in zip(h, B, strict=True))
-        Fh = sum(hi * Fi for hi, Fi in zip(h, sol.F, strict=True))
-        Acl = Ah + Bh @ Fh
         # Lyapunov decrease by at least the stage cost, for every membership vector
-        M = Acl.T @ P @ Acl - P + W + Fh.T @ R @ Fh
-        assert np.linalg.eigvalsh(0.5 * (M + M.T)).max() <= 1e-6 * scale
+        Fh, Acl = _lyapunov_decrease(h, A, B, sol.F, W, R, P, scale)
         assert np.abs(np.linalg.eigvals(Acl)).max() < 1.0
         # input constraint at the current state, every car
         u = model.C_u @ (Fh @ x)
@@ -438,12 +447,7 @@ def test_a_state_outside_the_ellipsoid_keeps_the_gains_only_on_a_certified_enlar
     rng = np.random.default_rng(1)
     r = len(A)
     for h in [np.eye(r)[i] for i in range(r)] + [rng.dirichlet(np.ones(r)) for _ in range(10)]:
-        Ah = sum(hi * Ai for hi, Ai in zip(h, A, strict=True))
-        Bh = sum(hi * Bi for hi, Bi in zip(h, B, strict=True))
-        Fh = sum(hi * Fi for hi, Fi in zip(h, new.F, strict=True))
-        Acl = Ah + Bh @ Fh
-        M = Acl.T @ P @ Acl - P + W + Fh.T @ R @ Fh
-        assert np.linalg.eigvalsh(0.5 * (M + M.T)).max() <= 1e-6 * scale
+        Fh, _ = _lyapunov_decrease(h, A, B, new.F, W, R, P, scale)
         # the largest force deviation on the enlarged ellipsoid is within u_bar
         CF = model.C_u @ Fh
         assert np.all(np.einsum("ij,jk,ik->i", CF, new.Q, CF) <= lim * (1 + 1e-9))
