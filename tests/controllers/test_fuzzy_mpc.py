@@ -432,10 +432,10 @@ def test_a_state_outside_the_ellipsoid_keeps_the_gains_only_on_a_certified_enlar
     L = 0.5 * (1.0 + room)
     xo = x * np.sqrt(L / float(x @ sol.Q_inv @ x))
     # too far out: a re-solve is due and the cached solution stays as it was
-    assert ctrl._needs_solve(xo * np.sqrt(1.1 * room / L), v_r, u_bar)
+    assert ctrl._needs_solve(xo * np.sqrt(1.1 * room / L), v_r, lambda: u_bar)
     assert ctrl._sol is sol
     # within the certified enlargement: no re-solve, same gains, scaled certificate
-    assert not ctrl._needs_solve(xo, v_r, u_bar)
+    assert not ctrl._needs_solve(xo, v_r, lambda: u_bar)
     new = ctrl._sol
     assert all(np.array_equal(a, b) for a, b in zip(new.F, sol.F, strict=True))
     np.testing.assert_allclose(new.Q, L * sol.Q, rtol=1e-12)

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from train_envs.mpc.blas import single_thread_blas
-from train_envs.mpc.description import _check_penalty_arg, _weight
+from train_envs.mpc.description import _check_penalty_arg, _is_diagonal, _weight, _weight_eigh
 
 _MEMO_MAX = 64  # entries per memo below (a tuner's weight search would grow them)
 _SQRT: dict[bytes, np.ndarray] = {}
@@ -81,13 +81,9 @@ def _psd_sqrt(W: np.ndarray) -> np.ndarray:
     hit = _SQRT.get(key)
     if hit is not None:
         return hit
-    n = W.shape[0]
-    if 0 < n <= _DIAG_SQRT_MAX:
-        d = W.diagonal()
-        if np.count_nonzero(W) == np.count_nonzero(d):
-            return _memo_put(_SQRT, key, _diagonal_sqrt(d))
-    lam, V = np.linalg.eigh(W)
-    return _memo_put(_SQRT, key, _eigh_sqrt(lam, V))
+    if 0 < W.shape[0] <= _DIAG_SQRT_MAX and _is_diagonal(W):
+        return _memo_put(_SQRT, key, _diagonal_sqrt(W.diagonal()))
+    return _memo_put(_SQRT, key, _eigh_sqrt(*np.linalg.eigh(W)))
 
 
 def _eigh_sqrt(lam: np.ndarray, V: np.ndarray) -> np.ndarray:
@@ -103,76 +99,62 @@ def _checked_weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
         return _weight(name, value, dim)
     if value.shape != (dim, dim):
         return _weight(name, value, dim)
-    if dim:
-        # a diagonal weight with a finite non-negative diagonal (the controllers' weights at
-        # every change): _weight's result is a copy of it, without the symmetry and
-        # eigenvalue checks
-        d = value.diagonal()
-        if np.count_nonzero(value) == np.count_nonzero(d) and math.isfinite(d.sum()):
-            if d.min() >= 0.0:
-                return value.copy()
     key = (name, value.tobytes())
     hit = _CHECKED.get(key)
     if hit is not None:
         return hit
-    if dim and np.isfinite(value).all():
-        # a full weight (a Riccati terminal cost): _weight's checks with one eigh whose
-        # factor _psd_sqrt then finds remembered; anything it would refuse goes to it
-        scale = max(1.0, float(np.max(np.abs(value))))
-        if float(np.max(np.abs(value - value.T))) <= 1e-9 * scale:
-            w = 0.5 * (value + value.T)
-            lam, V = np.linalg.eigh(w)
-            if lam[0] >= -1e-10 * scale:
-                _memo_put(_SQRT, w.tobytes(), _eigh_sqrt(lam, V))
-                return _memo_put(_CHECKED, key, w)
-    return _memo_put(_CHECKED, key, _weight(name, value, dim))
+    w, eig = _weight_eigh(name, value, dim)
+    if eig is not None:  # a full weight: _psd_sqrt finds its factor from the check's eigh
+        _memo_put(_SQRT, w.tobytes(), _eigh_sqrt(*eig))
+    return _memo_put(_CHECKED, key, w)
 
 
 class _ResidualWeight:
     """The block-diagonal residual weight ``W`` and its factor ``Lw`` (``LwᵀLw = W``).
 
-    Products with them take the exact shortcuts their structure allows when every block
-    but (possibly) the last is diagonal (the stage weights; the last a full terminal
-    cost): the diagonal part of ``W`` scales columns (``X @ W``) and its factor rows, one
-    entry each, scale and pick rows (``Lw @ Y``); the full block multiplies only its own
-    rows and columns. Each entry of such a product has the dense product's non-zero
-    terms in the same order, so the shortcut gives the dense product's numbers.
+    Products with them take the exact shortcuts of the leading diagonal blocks (the
+    stage weights): there ``W`` scales columns (``X @ W``) and the factor rows, one entry
+    each, scale and pick rows (``Lw @ Y``); the blocks from the first full one on (a
+    terminal cost) multiply only their own rows and columns. Each entry of such a
+    product has the dense product's non-zero terms in the same order, so the shortcut
+    gives the dense product's numbers.
     """
 
-    __slots__ = ("W", "Lw", "_d", "_rows", "_full")
+    __slots__ = ("W", "Lw", "_c0", "_r0", "_d", "_rows")
 
-    def __init__(self, W: np.ndarray, Lw: np.ndarray, full: tuple[int, int] | None) -> None:
-        """``full``: ``(first column, first factor row)`` of a trailing full block, or None
-        when every block is diagonal."""
-        self.W, self.Lw = W, Lw
-        c0, r0 = full if full is not None else (W.shape[0], Lw.shape[0])
-        self._full = full
-        self._d = W.diagonal().copy()
-        self._d[c0:] = 0.0
-        cols = np.argmax(Lw[:r0, :c0] != 0.0, axis=1)
+    def __init__(self, W: np.ndarray, Lw: np.ndarray, c0: int, r0: int) -> None:
+        """``c0``, ``r0``: the first column of ``W`` and the first row of ``Lw`` past
+        the leading diagonal blocks."""
+        self.W, self.Lw, self._c0, self._r0 = W, Lw, c0, r0
+        self._d = W.diagonal()[:c0].copy()
+        cols = np.argmax(Lw[:r0, :c0] != 0.0, axis=1) if c0 else np.zeros(0, dtype=np.intp)
         self._rows = (cols, Lw[np.arange(r0), cols])
 
     def right(self, X: np.ndarray) -> np.ndarray:
         """``X @ W``."""
-        out = np.multiply(X, self._d, order="C")
-        if self._full is not None:
-            c0 = self._full[0]
-            out[:, c0:] = X[:, c0:] @ self.W[c0:, c0:]
+        c0, n = self._c0, self.W.shape[0]
+        if c0 == 0:
+            return X @ self.W
+        if c0 == n:
+            return np.multiply(X, self._d, order="C")
+        out = np.empty((X.shape[0], n))
+        np.multiply(X[:, :c0], self._d, out=out[:, :c0])
+        out[:, c0:] = X[:, c0:] @ self.W[c0:, c0:]
         return out
 
     def factor(self, Y: np.ndarray) -> np.ndarray:
         """``Lw @ Y``."""
+        c0, r0 = self._c0, self._r0
+        if c0 == 0:
+            return self.Lw @ Y
         cols, vals = self._rows
         head = vals[:, None] * Y[cols]
-        if self._full is None:
+        if c0 == self.W.shape[0]:
             return head
-        c0, r0 = self._full
         return np.vstack([head, self.Lw[r0:, c0:] @ Y[c0:]])
 
 
-def _stage_weights(
-    blocks: list[tuple[np.ndarray | None, int, np.ndarray]],
-) -> _ResidualWeight | _DenseResidualWeight:
+def _stage_weights(blocks: list[tuple[np.ndarray | None, int, np.ndarray]]) -> _ResidualWeight:
     """The residual weight of ``blocks``: ``(scales, k, X)`` per weighted residual, ``X``
     repeated on ``k`` stages, stage ``t`` scaled by ``scales[t]`` (``None``: 1) and its
     factor rows by ``sqrt(scales[t])`` -- ``block_diag(kron(diag(scales), X), ...)``
@@ -182,18 +164,11 @@ def _stage_weights(
     n_rows = sum(k * L.shape[0] for (_, k, _), L in zip(blocks, facs, strict=True))
     Lw = np.zeros((n_rows, W.shape[0]))
     r = c = 0
-    diagonal = [np.count_nonzero(X) == np.count_nonzero(X.diagonal()) for _, _, X in blocks]
-    full = None
-    if not all(diagonal[:-1]):
-        kind = "dense"  # a full stage weight: the dense products
-    elif not diagonal[-1]:
-        kind = "last"
-    else:
-        kind = "diagonal"
+    first_full: tuple[int, int] | None = None
     for (scales, k, X), L in zip(blocks, facs, strict=True):
         d, rl = X.shape[0], L.shape[0]
-        if kind == "last" and X is blocks[-1][2]:
-            full = (c, r)
+        if first_full is None and not _is_diagonal(X):
+            first_full = (c, r)
         if scales is None:
             for _ in range(k):
                 W[c : c + d, c : c + d] = X
@@ -207,26 +182,7 @@ def _stage_weights(
                 Lw[r : r + rl, c : c + d] = roots[t] * L
                 r += rl
                 c += d
-    if kind == "dense":
-        return _DenseResidualWeight(W, Lw)
-    return _ResidualWeight(W, Lw, full)
-
-
-class _DenseResidualWeight:
-    """``W`` and ``Lw`` without structure to exploit: the dense products."""
-
-    __slots__ = ("W", "Lw")
-
-    def __init__(self, W: np.ndarray, Lw: np.ndarray) -> None:
-        self.W, self.Lw = W, Lw
-
-    def right(self, X: np.ndarray) -> np.ndarray:
-        """``X @ W``."""
-        return X @ self.W
-
-    def factor(self, Y: np.ndarray) -> np.ndarray:
-        """``Lw @ Y``."""
-        return self.Lw @ Y
+    return _ResidualWeight(W, Lw, *(first_full or (c, r)))
 
 
 @dataclass(frozen=True)
@@ -515,7 +471,6 @@ class _AssemblyMixin:
         if self._P is not None:
             blocks.append((None, 1, self._P))
         wt = _stage_weights(blocks)
-        self._Lw = wt.Lw
         self._lw_ez = None
         self._condensed_src = (Ez, Eth, wt)
         # the sparse form needs the condensed quantities only for the refinement and the
@@ -601,7 +556,8 @@ class _AssemblyMixin:
         if self._sparse:
             return None
         if self._lw_ez is None:
-            self._lw_ez = self._condensed_src[2].factor(self._condensed_src[0])
+            Ez, _, wt = self._condensed_src
+            self._lw_ez = wt.factor(Ez)
         return self._lw_ez
 
     def residual_maps(self) -> ResidualMaps:

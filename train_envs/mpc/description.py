@@ -40,6 +40,14 @@ def _matrix(name: str, value: ArrayLike, *, column: bool = False) -> np.ndarray:
 
 def _weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
     """Scalar, diagonal (vector) or full symmetric PSD weight -> (dim, dim) matrix."""
+    return _weight_eigh(name, value, dim)[0]
+
+
+def _weight_eigh(
+    name: str, value: ArrayLike, dim: int
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+    """:func:`_weight` and, for a weight that is not diagonal, the ``eigh`` of the result
+    its PSD check computed (``None`` for a diagonal one)."""
     try:
         w = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -54,20 +62,29 @@ def _weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
         raise ValueError(f"{name} must have shape ({dim}, {dim}), got {w.shape}")
     if not np.all(np.isfinite(w)):
         raise ValueError(f"{name} must contain only finite values")
-    scale = max(1.0, float(np.max(np.abs(w)))) if dim else 1.0
-    if np.max(np.abs(w - w.T), initial=0.0) > 1e-9 * scale:
-        raise ValueError(f"{name} must be symmetric")
-    w = 0.5 * (w + w.T)
-    d = np.diag(w)
     if not dim:
-        return w
-    # a diagonal weight (the usual case, at every weight change) is PSD by its diagonal
-    lam_min = float(d.min()) if np.count_nonzero(w) == np.count_nonzero(d) else None
-    if lam_min is None:
-        lam_min = float(np.min(np.linalg.eigvalsh(w)))
+        return w, None
+    eig = None
+    if _is_diagonal(w):
+        # a diagonal weight (the usual case, at every weight change): symmetric as it is,
+        # PSD by its diagonal
+        d = np.diagonal(w)
+        lam_min, scale = float(d.min()), max(1.0, float(np.max(np.abs(d))))
+    else:
+        scale = max(1.0, float(np.max(np.abs(w))))
+        if np.max(np.abs(w - w.T)) > 1e-9 * scale:
+            raise ValueError(f"{name} must be symmetric")
+        w = 0.5 * (w + w.T)
+        eig = np.linalg.eigh(w)
+        lam_min = float(eig[0][0])
     if lam_min < -1e-10 * scale:
         raise ValueError(f"{name} must be positive semidefinite")
-    return w
+    return w, eig
+
+
+def _is_diagonal(w: np.ndarray) -> bool:
+    """Whether every non-zero entry of the square matrix ``w`` lies on its diagonal."""
+    return np.count_nonzero(w) == np.count_nonzero(np.diagonal(w))
 
 
 def _vector(name: str, value: ArrayLike, dim: int, *, allow_inf: bool = False) -> np.ndarray:

@@ -47,8 +47,10 @@ Design notes and measurements: ``docs/design/fuzzy_mpc.md``.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -317,6 +319,14 @@ class FuzzyMPCController(Controller):
             x=np.array(x),
         )
 
+    def _input_room_kN(self, u_eq: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """ū [kN]: each car's room for a force deviation about ``u_eq`` inside its
+        envelope ``[lo, hi]`` (and ``u_bound_N``), at least 1 kN."""
+        room = np.minimum(hi - u_eq, u_eq - lo)
+        if self.u_bound_N is not None:
+            room = np.minimum(room, self.u_bound_N)
+        return np.maximum(room, 1e3) / 1000.0
+
     def _rescale(self, level: float, u_bar: np.ndarray) -> bool:
         """Enlarge the cached ellipsoid to ``xᵀ Q⁻¹ x = level`` if its gains allow it.
 
@@ -338,22 +348,18 @@ class FuzzyMPCController(Controller):
             peak = np.einsum("ij,jk,ik->i", CY, sol.Q_inv, CY)  # diag(C_u Y Q⁻¹ Yᵀ C_uᵀ)
             if np.any(level * peak > lim):
                 return False
-        self._sol = LMISolution(
+        self._sol = dataclasses.replace(
+            sol,
             gamma=level * sol.gamma,
             Q=level * sol.Q,
             Y=[level * Y for Y in sol.Y],
-            F=sol.F,
-            P=sol.P,
             Q_inv=sol.Q_inv / level,
-            status=sol.status,
-            solve_time_s=sol.solve_time_s,
-            wall_s=sol.wall_s,
-            iterations=sol.iterations,
-            x=sol.x,
         )
         return True
 
-    def _needs_solve(self, x: np.ndarray, v_r: float, u_bar: np.ndarray) -> bool:
+    def _needs_solve(self, x: np.ndarray, v_r: float, u_bar: Callable[[], np.ndarray]) -> bool:
+        """Whether the LMI is re-solved this step (rules (a)-(e) of the module docstring);
+        ``u_bar()``: the current input room [kN], asked for only by rule (a)."""
         sol = self._sol
         if sol is None or self._force_solve:
             return True
@@ -368,7 +374,7 @@ class FuzzyMPCController(Controller):
             return True
         level = float(x @ sol.Q_inv @ x)
         if level > 1.0 + 1e-9:
-            return not (self.enlarge_outside and self._rescale(level, u_bar))
+            return not (self.enlarge_outside and self._rescale(level, u_bar()))
         return (
             self.resolve_shrink > 0
             and level < self.resolve_shrink
@@ -387,12 +393,9 @@ class FuzzyMPCController(Controller):
         u_eq = self._equilibrium(obs, v_r, a_r)
         lo, hi = self._bounds(float(obs.speeds_mps[0]))
         info: dict[str, Any] = {"triggered": 0.0, "solve_time_s": 0.0, "iterations": 0.0}
-        room = np.minimum(hi - u_eq, u_eq - lo)
-        if self.u_bound_N is not None:
-            room = np.minimum(room, self.u_bound_N)
-        u_bar = np.maximum(room, 1e3) / 1000.0  # kN, at least 1 kN
+        u_bar = functools.partial(self._input_room_kN, u_eq, lo, hi)  # only where needed
         if self._needs_solve(x, v_r, u_bar):
-            sol = self.solve_lmi(x, v_r, u_bar)
+            sol = self.solve_lmi(x, v_r, u_bar())
             self._force_solve = False
             self._weights_since = None
             self._k_solve = self._k
