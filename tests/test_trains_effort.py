@@ -242,3 +242,31 @@ def test_envelope_rejects_bad_limits() -> None:
         ForceEnvelope(traction_force_N=1e5, brake_force_N=-1.0)
     with pytest.raises(ValueError, match="traction_power_W"):
         ForceEnvelope(traction_force_N=1e5, brake_force_N=1e5, traction_power_W=0.0)
+
+
+def test_envelope_bounds_twins_are_equal_bit_for_bit() -> None:
+    from train_envs import _jit
+    from train_envs.effort import BOUNDS
+
+    speeds = np.abs(np.concatenate([SPEEDS, np.random.default_rng(3).uniform(0, 40, 2000)]))
+    envelopes = [
+        _tabulated().envelope,
+        _tabulated(max_friction_brake_force_N=2e4).envelope,
+        get_train("paper004_btype_metro").envelope,
+        ForceEnvelope(3e5, 2e5),
+        ForceEnvelope(3e5, 2e5, traction_power_W=2e6, accel_force_N=2.8e5, davis=(1e3, 20.0, 3.0),
+                      brake_power_W=3e6, friction_brake_N=1e4, decel_force_N=2.5e5),
+    ]  # fmt: skip
+    ref = _jit.implementation(BOUNDS, compiled_twin=False)
+    for env in envelopes:
+        T, E = env._t[1], env._b[1]
+        tv = np.zeros(0) if T is None else np.asarray(T(speeds), float)
+        ev = np.zeros(0) if E is None else np.asarray(E(speeds), float)
+        lo, hi = ref(speeds, tv, ev, env._k)
+        assert lo.tolist() == [-env.brake_N(v) for v in speeds.tolist()]
+        assert hi.tolist() == [env.traction_N(v) for v in speeds.tolist()]
+        lo2, hi2 = env.bounds(speeds.reshape(-1, 2))
+        assert lo2.reshape(-1).tolist() == lo.tolist() and hi2.reshape(-1).tolist() == hi.tolist()
+        if _jit.enabled():
+            lo_c, hi_c = _jit.implementation(BOUNDS, compiled_twin=True)(speeds, tv, ev, env._k)
+            assert np.array_equal(lo_c, lo) and np.array_equal(hi_c, hi)

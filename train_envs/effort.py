@@ -29,15 +29,18 @@ scalar, list and array forms give equal values bit for bit.  See
 from __future__ import annotations
 
 import csv
+import functools
 import math
 from bisect import bisect_left, bisect_right
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from train_envs import _jit
 from train_envs.plants.lookup import PiecewiseLinear
 from train_envs.plants.physics import davis_N, davis_sq_N
 from train_envs.validation import check_nonnegative, check_positive
@@ -213,6 +216,9 @@ class ForceEnvelope:
     _t: tuple = field(init=False, repr=False, compare=False)
     _b: tuple = field(init=False, repr=False, compare=False)
 
+    # (F_t, P_t, M'a_max, a, b, c, F_b, P_b, F_fric, M'd_max), NaN where absent: BOUNDS
+    _k: np.ndarray = field(init=False, repr=False, compare=False)
+
     def __post_init__(self) -> None:
         for name in ("traction_force_N", "brake_force_N", "friction_brake_N"):
             check_nonnegative(name, getattr(self, name))
@@ -244,6 +250,19 @@ class ForceEnvelope:
                 self.decel_force_N if fin(self.decel_force_N) else None,
             ),
         )
+
+        t, b = self._t, self._b
+        nan = math.nan
+        object.__setattr__(
+            self,
+            "_k",
+            np.array(
+                [t[0], nan if t[2] is None else t[2], nan if t[3] is None else t[3], t[4],
+                 t[5], t[6], b[0], nan if b[2] is None else b[2], b[3],
+                 nan if b[4] is None else b[4]],
+                dtype=float,
+            ),
+        )  # fmt: skip
 
     @property
     def tabulated(self) -> bool:
@@ -279,28 +298,18 @@ class ForceEnvelope:
 
     # ------------------------------------------------------------------ vectorised
     def bounds(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(−B_max(v), F_max(v))`` for an array (or numpy scalar) of speeds."""
-        F, T, P, MA, a, b, c = self._t
-        Fb, E, Pb, Ffr, MD = self._b
+        """``(−B_max(v), F_max(v))`` for an array (or numpy scalar) of speeds
+        (:data:`BOUNDS`: :func:`bounds_arrays` or its compiled twin)."""
         av = np.abs(np.asarray(v, dtype=float))
         if av.ndim == 0:  # a scalar speed: numpy scalars, the same values as the arrays
             lo, hi = self.bounds(av.reshape(1))
-            return lo[0], hi[0] if MA is not None else hi.reshape(())
-        pos = av > 0
-        hi = np.full(av.shape, F) if T is None else np.minimum(F, T(av))
-        # the power limits apply to moving speeds only: P/|v| there, +inf at standstill
-        if P is not None:
-            hi = np.minimum(hi, np.divide(P, av, out=np.full(av.shape, np.inf), where=pos))
-        if MA is not None:
-            davis = davis_sq_N(a, b, c, av)  # (numpy's av**2 is av * av)
-            hi = np.minimum(hi, MA + np.where(pos, davis, 0.0))
-        lo = np.full(av.shape, Fb) if E is None else np.minimum(Fb, E(av))
-        if Pb is not None:
-            lo = np.minimum(lo, np.divide(Pb, av, out=np.full(av.shape, np.inf), where=pos))
-        lo += Ffr
-        if MD is not None:
-            lo = np.minimum(lo, MD)
-        return -lo, hi
+            return lo[0], hi[0] if self._t[3] is not None else hi.reshape(())
+        flat = av.reshape(-1)
+        T, E = self._t[1], self._b[1]
+        tv = _NONE if T is None else np.asarray(T(flat), dtype=float)
+        ev = _NONE if E is None else np.asarray(E(flat), dtype=float)
+        lo, hi = _bounds_impl()(flat, tv, ev, self._k)
+        return lo.reshape(av.shape), hi.reshape(av.shape)
 
     def bounds_lists(self, speeds: Sequence[float]) -> tuple[list[float], list[float]]:
         """:meth:`bounds` for a short sequence of finite speeds, as Python lists (the
@@ -363,4 +372,78 @@ class ForceEnvelope:
         return F if T is None else min(F, max(T.forces_N))
 
 
-__all__ = ["FORCE_UNITS", "SPEED_UNITS", "EffortCurve", "ForceEnvelope"]
+_NONE = np.zeros(0)
+
+
+def bounds_arrays(
+    av: np.ndarray, tv: np.ndarray, ev: np.ndarray, K: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(−B_max, F_max)`` at the speeds ``av ≥ 0`` (1-D), numpy form: the reference of
+    :data:`BOUNDS`. ``tv``, ``ev``: ``T(av)``, ``E(av)`` (empty: no table); ``K``: the
+    envelope's ``(F_t, P_t, M'a_max, a, b, c, F_b, P_b, F_fric, M'd_max)``, NaN where a
+    term is absent (the module docstring's equations)."""
+    F, P, MA, a, b, c, Fb, Pb, Ffr, MD = K.tolist()
+    pos = av > 0
+    hi = np.full(av.shape, F) if tv.size == 0 else np.minimum(F, tv)
+    # the power limits apply to moving speeds only: P/|v| there, +inf at standstill
+    if P == P:
+        hi = np.minimum(hi, np.divide(P, av, out=np.full(av.shape, np.inf), where=pos))
+    if MA == MA:
+        davis = davis_sq_N(a, b, c, av)  # (numpy's av**2 is av * av)
+        hi = np.minimum(hi, MA + np.where(pos, davis, 0.0))
+    lo = np.full(av.shape, Fb) if ev.size == 0 else np.minimum(Fb, ev)
+    if Pb == Pb:
+        lo = np.minimum(lo, np.divide(Pb, av, out=np.full(av.shape, np.inf), where=pos))
+    lo += Ffr
+    if MD == MD:
+        lo = np.minimum(lo, MD)
+    return -lo, hi
+
+
+def _np_min(x: float, y: float) -> float:
+    """numpy's ``minimum`` of two floats (NaN if either is NaN)."""
+    return x if (x < y or x != x) else y
+
+
+def bounds_loop(
+    av: np.ndarray, tv: np.ndarray, ev: np.ndarray, K: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`bounds_arrays` speed by speed (the same IEEE operations): the source of
+    the compiled twin of :data:`BOUNDS`."""
+    F, P, MA, a, b, c, Fb, Pb, Ffr, MD = K[0], K[1], K[2], K[3], K[4], K[5], K[6], K[7], K[8], K[9]
+    n = av.shape[0]
+    lo_out = np.empty(n)
+    hi_out = np.empty(n)
+    for i in range(n):
+        x = av[i]
+        pos = x > 0
+        hi = F if tv.size == 0 else _np_min(F, tv[i])
+        if P == P:
+            hi = _np_min(hi, P / x if pos else np.inf)
+        if MA == MA:
+            hi = _np_min(hi, MA + (davis_sq_N(a, b, c, x) if pos else 0.0))
+        lo = Fb if ev.size == 0 else _np_min(Fb, ev[i])
+        if Pb == Pb:
+            lo = _np_min(lo, Pb / x if pos else np.inf)
+        lo += Ffr
+        if MD == MD:
+            lo = _np_min(lo, MD)
+        lo_out[i] = -lo
+        hi_out[i] = hi
+    return lo_out, hi_out
+
+
+#: the name of the envelope's array form in :data:`train_envs._jit.TWINS`
+BOUNDS = "effort.bounds"
+_jit.register(
+    BOUNDS, bounds_arrays, source=bounds_loop,
+    helpers={"_np_min": _np_min, "davis_sq_N": davis_sq_N},
+)  # fmt: skip
+
+
+@functools.cache
+def _bounds_impl() -> Any:
+    return _jit.implementation(BOUNDS)
+
+
+__all__ = ["BOUNDS", "FORCE_UNITS", "SPEED_UNITS", "EffortCurve", "ForceEnvelope", "bounds_arrays"]

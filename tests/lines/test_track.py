@@ -323,3 +323,30 @@ def test_paper_lines_have_documented_sources() -> None:
     assert d12.length_m == 2940.0
     assert np.all(np.abs(d12.gradients_permil) <= 30.0)
     assert d12.speed_limits_mps.max() == pytest.approx(80 * KMH)
+
+
+@pytest.mark.parametrize(
+    "track_id", ["paper004", "paper000_multi_section", *ttobench_track_ids()[:4]]
+)
+def test_equivalent_gradient_twins_equal_the_scalar_lookups(track_id: str) -> None:
+    from train_envs import _jit
+    from train_envs.lines.track import EQUIVALENT_GRADIENT
+
+    tr = get_track(track_id)
+    end = float(tr.stops_m[-1])
+    edges = np.concatenate([tr.gradient_positions_m, tr.curve_positions_m, tr._cv_end_arr])
+    x = np.concatenate(
+        [np.random.default_rng(0).uniform(-50.0, end + 50.0, 3000), edges, edges - 1e-9]
+    )
+    args = (
+        tr.gradient_positions_m, tr.gradients_permil, tr.curve_positions_m,
+        tr._cv_end_arr, tr._cv_k0_arr, tr._cv_k1_arr,
+    )  # fmt: skip
+    ref = _jit.implementation(EQUIVALENT_GRADIENT, compiled_twin=False)(x, *args)
+    scalar = [tr.gradient_permil_at(s) + tr.curve_resistance_permil_at(s) for s in x.tolist()]
+    assert ref.tolist() == scalar
+    assert tr.equivalent_gradient_permil_at(x).tolist() == scalar
+    assert tr.equivalent_gradient_permil_at(x.reshape(-1, 2)).reshape(-1).tolist() == scalar
+    if _jit.enabled():
+        fast = _jit.implementation(EQUIVALENT_GRADIENT, compiled_twin=True)(x, *args)
+        assert np.array_equal(fast, ref)

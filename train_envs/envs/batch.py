@@ -167,4 +167,14 @@ def evaluate_env_params_batch(
             loop.run()
             for b, (i, j, _) in enumerate(members):
                 rows[i][j] = episode_row(j, seeds[j], sc.name, loop.metrics(b), ids=ids)
-        return [metrics_table(r) for r in rows]
+        return _split_tables(rows)
+
+
+def _split_tables(rows: Sequence[Sequence[Mapping[str, Any]]]) -> list[pd.DataFrame]:
+    """:func:`metrics_table` of each member's rows, made as one table of all rows and
+    cut into equal slices (one pandas construction instead of one per member; the
+    metrics are floats and the ids strings in every row, so each slice has the dtypes
+    its own table would have)."""
+    n = len(rows[0])
+    flat = metrics_table([row for member in rows for row in member])
+    return [flat.iloc[i * n : (i + 1) * n].reset_index(drop=True) for i in range(len(rows))]

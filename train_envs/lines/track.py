@@ -28,6 +28,7 @@ formula ``w_c = 600 / R`` [N/kN, i.e. permil], ``R`` in m, see
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -38,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from train_envs import _jit
 from train_envs._lazy import lazy_exports
 from train_envs.trains import KMH, G
 from train_envs.validation import check_increasing, check_range
@@ -409,9 +411,17 @@ class Track:
         """Gradient plus curve resistance as an equivalent gradient [permil].
 
         ``i_eq = i + 600 / |R|`` (``R`` in m, ignored above 10 km), see
-        :meth:`curve_resistance_permil_at`.
+        :meth:`curve_resistance_permil_at`. An array of positions goes through
+        :data:`EQUIVALENT_GRADIENT` (the same values).
         """
-        return self.gradient_permil_at(s) + self.curve_resistance_permil_at(s)
+        if isinstance(s, _SCALAR) or np.ndim(s) == 0:
+            return self.gradient_permil_at(s) + self.curve_resistance_permil_at(s)
+        x = np.asarray(s, float)
+        out = _equivalent_gradient_impl()(
+            x.reshape(-1), self.gradient_positions_m, self.gradients_permil,
+            self.curve_positions_m, self._cv_end_arr, self._cv_k0_arr, self._cv_k1_arr,
+        )  # fmt: skip
+        return out.reshape(x.shape)
 
     def gradient_force_N(
         self, s: FloatOrArray, mass_kg: float, *, include_curves: bool = True
@@ -703,3 +713,81 @@ def _track_from_ttobench_dict(data: Mapping[str, Any]) -> Track:
 __getattr__, __dir__ = lazy_exports(
     __name__, {name: "train_envs.lines.paper_lines" for name in PAPER_LINES}
 )
+
+
+def equivalent_gradient_arrays(
+    x: np.ndarray,
+    gr_pos: np.ndarray,
+    gr_val: np.ndarray,
+    cv_pos: np.ndarray,
+    cv_end: np.ndarray,
+    cv_k0: np.ndarray,
+    cv_k1: np.ndarray,
+) -> np.ndarray:
+    """:meth:`Track.equivalent_gradient_permil_at` at the positions ``x`` (1-D) from the
+    track's section arrays, numpy form: the reference of :data:`EQUIVALENT_GRADIENT`."""
+    g = gr_val[np.maximum(np.searchsorted(gr_pos, x, side="right") - 1, 0)]
+    i = np.maximum(np.searchsorted(cv_pos, x, side="right") - 1, 0)
+    p = cv_pos[i]
+    frac = np.clip((x - p) / (cv_end[i] - p), 0.0, 1.0)
+    k0 = cv_k0[i]
+    ak = np.abs(k0 + (cv_k1[i] - k0) * frac)
+    return g + np.where(ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0, CURVE_RESISTANCE_COEFF * ak, 0.0)
+
+
+def equivalent_gradient_loop(
+    x: np.ndarray,
+    gr_pos: np.ndarray,
+    gr_val: np.ndarray,
+    cv_pos: np.ndarray,
+    cv_end: np.ndarray,
+    cv_k0: np.ndarray,
+    cv_k1: np.ndarray,
+) -> np.ndarray:
+    """:func:`equivalent_gradient_arrays` position by position (the same IEEE
+    operations): the source of the compiled twin of :data:`EQUIVALENT_GRADIENT`."""
+    n = x.shape[0]
+    out = np.empty(n)
+    for j in range(n):
+        s = x[j]
+        ig = bisect_right(gr_pos, s) - 1
+        g = gr_val[ig if ig > 0 else 0]
+        i = bisect_right(cv_pos, s) - 1
+        if i < 0:
+            i = 0
+        p = cv_pos[i]
+        num = s - p
+        den = cv_end[i] - p
+        if den != 0.0:
+            frac = num / den
+        elif num != num or num == 0.0:
+            frac = np.nan
+        else:
+            frac = np.inf if num > 0.0 else -np.inf
+        if frac < 0.0:  # np.clip (NaN stays NaN)
+            frac = 0.0
+        elif frac > 1.0:
+            frac = 1.0
+        k0 = cv_k0[i]
+        k = k0 + (cv_k1[i] - k0) * frac
+        ak = k if k >= 0.0 else -k
+        if k != k:
+            ak = k
+        out[j] = g + (CURVE_RESISTANCE_COEFF * ak if ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0
+                      else 0.0)  # fmt: skip
+    return out
+
+
+#: the name of the array form of the equivalent gradient in :data:`train_envs._jit.TWINS`
+EQUIVALENT_GRADIENT = "lines.equivalent_gradient"
+_jit.register(
+    EQUIVALENT_GRADIENT,
+    equivalent_gradient_arrays,
+    source=equivalent_gradient_loop,
+    helpers={"bisect_right": _jit.bisect_right},
+)
+
+
+@functools.cache
+def _equivalent_gradient_impl() -> Callable[..., np.ndarray]:
+    return _jit.implementation(EQUIVALENT_GRADIENT)

@@ -190,7 +190,10 @@ class BatchLoop:
             row += [info[key] for key in keys]
         vals = np.array(row, dtype=float)
         k0 = int(k[0])
-        if np.all(k == k0):
+        full = ix.size == self.B
+        if full and (k == k0).all():  # the whole population at one step
+            self._table[k0, cols] = vals
+        elif (k == k0).all():
             self._table[k0][np.ix_(cols, ix)] = vals
         else:
             self._table[k[None, :], cols[:, None], ix[None, :]] = vals
@@ -198,7 +201,7 @@ class BatchLoop:
             for j, key in enumerate(("fallback", "slack_max", "iterations")):
                 if key in info:
                     self._last[ix, j] = info[key]
-        p.step(np.where(act, self._scatter(u, ix), 0.0), self.dt, act)
+        p.step(u if full else np.where(act, self._scatter(u, ix), 0.0), self.dt, act)
         self.u_prev[ix] = u
         self.k[ix] += 1
         self._check_done(ix)

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from train_envs import _jit
-from train_envs.controllers.batch import per_time, resistance_array, rules_batchable
+from train_envs.controllers.batch import resistance_array, rules_batchable
 from train_envs.controllers.dmc.batch_law import COMMAND, PLAN, PREDICT
 from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.dmc.qp import UNCONSTRAINED_INFO
@@ -161,36 +161,31 @@ class BatchDMC:
             theta = np.zeros(s.shape)
         return resistance_array(tr, v) - ref.k_davis * v + ref._mG * theta / 1000.0
 
-    def _preview(self, t: float) -> np.ndarray:
-        """Row ``[v_0, v_1 … v_P, s_ref, hold_0, hold_1 … hold_P]`` of the profile at time
-        ``t`` (hold flags 1.0 where the stop hold replaces the preview)."""
-        sp = self.ref._setpoint
-        prof = sp.profile
-        v_prev = prof.sample_sv(t, sp.dt_s, sp.horizon)[1]
-        hold = [0.0] * (sp.horizon + 1)
-        if sp.hold > 0.0 and t + sp._dtk[-1] >= sp.t_end:
-            hold = [1.0 if t >= sp.t_end else 0.0] + [
-                1.0 if t + d >= sp.t_end else 0.0 for d in sp._dtk
-            ]
-        return np.array([prof.v_at_t(t), *v_prev, prof.s_at_t(t) if sp.catchup else 0.0, *hold])
-
     def _setpoint(self, t: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(y_r(k), y_r(k+1 … k+P)) of :class:`~.setpoint.SetpointPreview` per member."""
+        """(y_r(k), y_r(k+1 … k+P)) of :class:`~.setpoint.SetpointPreview` per member
+        (the time part read once per distinct time, :meth:`SetpointPreview.time_row`)."""
         sp = self.ref._setpoint
-        n = sp.horizon + 1
-        rows = per_time(t, self._preview)
-        vv = rows[:, :n]
+        t0 = t.item(0)
+        if (t == t0).all():  # in lockstep
+            v, s_ref, fade, held = sp.time_row(t0)
+            vv = v[None, :]
+        else:
+            ut, inv = np.unique(t, return_inverse=True)
+            parts = [sp.time_row(x) for x in ut.tolist()]
+            inv = inv.reshape(-1)
+            vv = np.stack([r[0] for r in parts])[inv]
+            s_ref = np.array([r[1] for r in parts])[inv]
+            fade = np.stack([r[2] for r in parts])[inv] if sp.catchup else None
+            held = np.stack([r[3] for r in parts])[inv]
         if sp.catchup:
-            c = sp.gain * (rows[:, n] - s)
+            c = sp.gain * (s_ref - s)
             c = np.where(-sp.c_max > c, -sp.c_max, c)
             c = np.where(sp.c_max < c, sp.c_max, c)
-            q = vv / sp.fade
-            y_all = vv + c[:, None] * np.where(q < 1.0, q, 1.0)
+            y_all = vv + c[:, None] * fade
         else:
-            y_all = vv.copy()
-        held = rows[:, n + 1 :] != 0.0
+            y_all = np.repeat(vv, s.shape[0], axis=0) if vv.shape[0] == 1 else vv.copy()
         if held.any():
-            y_all[held] = -sp.hold
+            y_all[np.broadcast_to(held, y_all.shape)] = -sp.hold
         return y_all[:, 0], y_all[:, 1:]
 
     # ------------------------------------------------------------------ step

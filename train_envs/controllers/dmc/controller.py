@@ -313,7 +313,7 @@ class DMCController(Controller):
         self._edot = 0.0
         self._kf = dt / (self.edot_filter_s + dt)  # ė filter gain Δt / (T_f + Δt)
         self._w_cache: dict[float, tuple[list[float], list[float]]] = {}
-        self._setpoint = SetpointPreview(
+        sp = SetpointPreview(
             ctx.reference,
             dt,
             self.P,
@@ -322,6 +322,10 @@ class DMCController(Controller):
             fade_mps=self.catchup_fade,
             hold_mps=self.stop_hold if ctx.s_stop_m is not None else 0.0,
         )
+        # the same preview as before (same reference and settings): keep the old one,
+        # with the time rows it remembers (SetpointPreview.time_row)
+        old = getattr(self, "_setpoint", None)
+        self._setpoint = old if old is not None and old.same_as(sp) else sp
         self.satisfaction_shape = SatisfactionShape.build(
             dt, self.t_bounds_samples, self.t_widths_samples, self.eps_y, self.delta_y,
             self.e_tol, self.edot_tol, self.combine,

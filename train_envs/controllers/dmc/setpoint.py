@@ -70,6 +70,51 @@ class SetpointPreview:
         self.catchup = self.mode == "time" and gain_1ps > 0.0
         #: a time-indexed SpeedProfile is read through its scalar methods
         self.scalar = self.mode == "time" and isinstance(self.profile, SpeedProfile)
+        self.reference = reference
+        self._rows: dict[float, tuple[np.ndarray, float, np.ndarray, np.ndarray | None]] = {}
+
+    def same_as(self, other: SetpointPreview) -> bool:
+        """Whether ``other`` gives the same preview at every time (the same reference
+        object, period, horizon, catch-up and hold)."""
+        return other.reference is self.reference and (
+            self.mode, self.dt_s, self.horizon, self.gain, self.c_max, self.fade, self.hold
+        ) == (other.mode, other.dt_s, other.horizon, other.gain, other.c_max, other.fade,
+              other.hold)  # fmt: skip
+
+    #: the most times :meth:`time_row` remembers (then it starts afresh)
+    MEMO_SIZE = 16384
+
+    def time_row(self, t: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray | None]:
+        """The part of the preview that depends on the time only, for a time-indexed
+        profile read through its scalar methods (:attr:`scalar`), at time ``t``:
+        ``(v, s_ref, fade, held)`` with ``v = [v_ref(t), v_ref(t + Δt) … v_ref(t + PΔt)]``
+        (as :meth:`__call__` reads it), ``s_ref = s_ref(t)`` (0 without catch-up),
+        ``fade = min(v / v_fade, 1)`` elementwise (``None`` without catch-up) and
+        ``held`` the mask of the entries the stop hold replaces. The setpoint row of a
+        member at position ``s`` is then ``v + sat(λ_x (s_ref − s), ±c_max) · fade`` with
+        the held entries set to ``−stop_hold``: :meth:`__call__`'s values.
+
+        Remembered per time (the values do not change: the profile is read-only), so
+        that a population in lockstep and the next generation on the same grid of
+        times read the profile once per time.
+        """
+        row = self._rows.get(t)
+        if row is None:
+            if len(self._rows) >= self.MEMO_SIZE:
+                self._rows.clear()
+            prof = self.profile
+            v = np.array([prof.v_at_t(t), *prof.sample_sv(t, self.dt_s, self.horizon)[1]])
+            held = np.zeros(self.horizon + 1, dtype=bool)
+            if self.hold > 0.0 and t + self._dtk[-1] >= self.t_end:
+                held[:] = [t >= self.t_end] + [t + d >= self.t_end for d in self._dtk]
+            if self.catchup:
+                q = v / self.fade
+                fade = np.where(q < 1.0, q, 1.0)
+                row = (v, prof.s_at_t(t), fade, held)
+            else:
+                row = (v, 0.0, None, held)
+            self._rows[t] = row
+        return row
 
     def __call__(self, t_s: float, s_m: float) -> tuple[float, float, list[float]]:
         """(v_ref(k), y_r(k), y_r(k+1 … k+P)) at time ``t_s`` and position ``s_m``."""
