@@ -338,10 +338,7 @@ def test_equivalent_gradient_twins_equal_the_scalar_lookups(track_id: str) -> No
     x = np.concatenate(
         [np.random.default_rng(0).uniform(-50.0, end + 50.0, 3000), edges, edges - 1e-9]
     )
-    args = (
-        tr.gradient_positions_m, tr.gradients_permil, tr.curve_positions_m,
-        tr._cv_end_arr, tr._cv_k0_arr, tr._cv_k1_arr,
-    )  # fmt: skip
+    args = tr.section_arrays()
     ref = _jit.implementation(EQUIVALENT_GRADIENT, compiled_twin=False)(x, *args)
     scalar = [tr.gradient_permil_at(s) + tr.curve_resistance_permil_at(s) for s in x.tolist()]
     assert ref.tolist() == scalar

@@ -417,11 +417,16 @@ class Track:
         if isinstance(s, _SCALAR) or np.ndim(s) == 0:
             return self.gradient_permil_at(s) + self.curve_resistance_permil_at(s)
         x = np.asarray(s, float)
-        out = _equivalent_gradient_impl()(
-            x.reshape(-1), self.gradient_positions_m, self.gradients_permil,
-            self.curve_positions_m, self._cv_end_arr, self._cv_k0_arr, self._cv_k1_arr,
+        return _equivalent_gradient_impl()(x.reshape(-1), *self.section_arrays()).reshape(x.shape)
+
+    def section_arrays(self) -> tuple[np.ndarray, ...]:
+        """The section arrays of the equivalent gradient: gradient positions and values,
+        curve section starts and ends, curvatures at the start and at the end (the
+        arguments after the positions of :func:`equivalent_gradient_arrays`)."""
+        return (
+            self.gradient_positions_m, self.gradients_permil, self.curve_positions_m,
+            self._cv_end_arr, self._cv_k0_arr, self._cv_k1_arr,
         )  # fmt: skip
-        return out.reshape(x.shape)
 
     def gradient_force_N(
         self, s: FloatOrArray, mass_kg: float, *, include_curves: bool = True
@@ -735,6 +740,43 @@ def equivalent_gradient_arrays(
     return g + np.where(ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0, CURVE_RESISTANCE_COEFF * ak, 0.0)
 
 
+def equivalent_gradient_1(
+    s: float,
+    gr_pos: np.ndarray,
+    gr_val: np.ndarray,
+    cv_pos: np.ndarray,
+    cv_end: np.ndarray,
+    cv_k0: np.ndarray,
+    cv_k1: np.ndarray,
+) -> float:
+    """:func:`equivalent_gradient_arrays` at one position ``s`` (the same IEEE
+    operations; a helper of compiled loops)."""
+    ig = bisect_right(gr_pos, s) - 1
+    g = gr_val[ig if ig > 0 else 0]
+    i = bisect_right(cv_pos, s) - 1
+    if i < 0:
+        i = 0
+    p = cv_pos[i]
+    num = s - p
+    den = cv_end[i] - p
+    if den != 0.0:
+        frac = num / den
+    elif num != num or num == 0.0:
+        frac = np.nan
+    else:
+        frac = np.inf if num > 0.0 else -np.inf
+    if frac < 0.0:  # np.clip (NaN stays NaN)
+        frac = 0.0
+    elif frac > 1.0:
+        frac = 1.0
+    k0 = cv_k0[i]
+    k = k0 + (cv_k1[i] - k0) * frac
+    ak = k if (k >= 0.0 or k != k) else -k
+    if ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0:
+        return g + CURVE_RESISTANCE_COEFF * ak
+    return g + 0.0
+
+
 def equivalent_gradient_loop(
     x: np.ndarray,
     gr_pos: np.ndarray,
@@ -744,37 +786,11 @@ def equivalent_gradient_loop(
     cv_k0: np.ndarray,
     cv_k1: np.ndarray,
 ) -> np.ndarray:
-    """:func:`equivalent_gradient_arrays` position by position (the same IEEE
-    operations): the source of the compiled twin of :data:`EQUIVALENT_GRADIENT`."""
-    n = x.shape[0]
-    out = np.empty(n)
-    for j in range(n):
-        s = x[j]
-        ig = bisect_right(gr_pos, s) - 1
-        g = gr_val[ig if ig > 0 else 0]
-        i = bisect_right(cv_pos, s) - 1
-        if i < 0:
-            i = 0
-        p = cv_pos[i]
-        num = s - p
-        den = cv_end[i] - p
-        if den != 0.0:
-            frac = num / den
-        elif num != num or num == 0.0:
-            frac = np.nan
-        else:
-            frac = np.inf if num > 0.0 else -np.inf
-        if frac < 0.0:  # np.clip (NaN stays NaN)
-            frac = 0.0
-        elif frac > 1.0:
-            frac = 1.0
-        k0 = cv_k0[i]
-        k = k0 + (cv_k1[i] - k0) * frac
-        ak = k if k >= 0.0 else -k
-        if k != k:
-            ak = k
-        out[j] = g + (CURVE_RESISTANCE_COEFF * ak if ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0
-                      else 0.0)  # fmt: skip
+    """:func:`equivalent_gradient_arrays` position by position (:func:`equivalent_gradient_1`):
+    the source of the compiled twin of :data:`EQUIVALENT_GRADIENT`."""
+    out = np.empty(x.shape[0])
+    for j in range(x.shape[0]):
+        out[j] = equivalent_gradient_1(x[j], gr_pos, gr_val, cv_pos, cv_end, cv_k0, cv_k1)
     return out
 
 
@@ -784,7 +800,7 @@ _jit.register(
     EQUIVALENT_GRADIENT,
     equivalent_gradient_arrays,
     source=equivalent_gradient_loop,
-    helpers={"bisect_right": _jit.bisect_right},
+    helpers={"bisect_right": _jit.bisect_right, "equivalent_gradient_1": equivalent_gradient_1},
 )
 
 

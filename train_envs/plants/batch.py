@@ -40,7 +40,7 @@ from train_envs.plants.single_car import (
     single_car_step,
 )
 
-__all__ = ["BATCH_CAR_STEP", "BatchSingleCar", "batch_car_step"]
+__all__ = ["BATCH_ACCEL", "BATCH_CAR_STEP", "BatchSingleCar", "batch_car_step"]
 
 #: the name of the batch step in :data:`train_envs._jit.TWINS`
 BATCH_CAR_STEP = "plants.batch_car_step"
@@ -61,13 +61,29 @@ def run_batch(
     has_tab: bool,
     WD: np.ndarray,
     has_dist: bool,
+    u: np.ndarray,
+    share: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    sat: np.ndarray,
+    work: np.ndarray,
 ) -> None:
     """:func:`~train_envs.plants.single_car.run_single` for every active member ``b``:
     state row ``ST[b]``, buffer ``BL[b]``, head ``heads[b]``, constants ``C[b]``, the
     gradient table ``XL[offs[b]:offs[b+1]]`` (and ``Y0L``, ``SL``), disturbance sums
-    ``WD[b]``; updates ``ST``, ``BL`` and ``heads`` in place."""
+    ``WD[b]``, with the command ``u[b] share[b]`` clipped to the envelope ``[lo[b]
+    share[b], hi[b] share[b]]`` first (``sat[b]``: whether it was clipped) and the
+    step's traction and braking work added to ``work[0, b]``, ``work[1, b]`` after;
+    updates ``ST``, ``BL``, ``heads``, ``sat`` and ``work`` in place."""
     for b in range(ST.shape[0]):
         if active[b]:
+            val = u[b] * share[b]
+            lo_b = lo[b] * share[b]
+            hi_b = hi[b] * share[b]
+            w = lo_b if val < lo_b else val
+            w = hi_b if w > hi_b else w
+            sat[b] = w != val
+            ST[b, ST_W] = w
             o0 = offs[b]
             o1 = offs[b + 1]
             heads[b] = run_single(
@@ -84,6 +100,10 @@ def run_batch(
                 WD[b],
                 has_dist,
             )
+            work[0, b] = work[0, b] + ST[b, ST_WT]
+            work[1, b] = work[1, b] + ST[b, ST_WB]
+            ST[b, ST_WT] = 0.0
+            ST[b, ST_WB] = 0.0
 
 
 def batch_car_step(
@@ -101,12 +121,25 @@ def batch_car_step(
     has_tab: bool,
     WD: np.ndarray,
     has_dist: bool,
+    u: np.ndarray,
+    share: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    sat: np.ndarray,
+    work: np.ndarray,
 ) -> None:
     """:func:`run_batch` through the single car's reference step (Python floats), member
     by member: the reference of the compiled twin."""
     for b in np.flatnonzero(active).tolist():
+        val = float(u[b]) * float(share[b])
+        lo_b = float(lo[b]) * float(share[b])
+        hi_b = float(hi[b]) * float(share[b])
+        w = lo_b if val < lo_b else val
+        w = hi_b if w > hi_b else w
+        sat[b] = w != val
         o0, o1 = int(offs[b]), int(offs[b + 1])
         st = ST[b].copy()
+        st[ST_W] = w
         bl = BL[b].copy()
         heads[b] = single_car_step(
             st,
@@ -122,6 +155,10 @@ def batch_car_step(
             WD[b],
             has_dist,
         )
+        work[0, b] = float(work[0, b]) + float(st[ST_WT])
+        work[1, b] = float(work[1, b]) + float(st[ST_WB])
+        st[ST_WT] = 0.0
+        st[ST_WB] = 0.0
         ST[b] = st
         BL[b] = bl
 
@@ -139,6 +176,64 @@ _jit.register(
         "run_single": run_single,
     },
 )
+
+
+def accel_arrays(
+    ST: np.ndarray,
+    order: int,
+    K: np.ndarray,
+    g: np.ndarray,
+    has_tab: bool,
+    d: np.ndarray,
+    has_dist: bool,
+    out: np.ndarray,
+) -> None:
+    """Each member's acceleration ``F/m' + N(s, v, t)`` [m/s²] (0 when held) into
+    ``out``, numpy form: the reference of :data:`BATCH_ACCEL`. ``K`` rows: Davis a, b, c
+    per member, m g / 1000, m, 1/m', the force coefficient; ``g``: the gradients [‰] at
+    the members' positions; ``d``: their disturbance sums."""
+    v = ST[:, ST_Z1]
+    a0, b0, c0, mg0, m0, minv0, acc_coef = K
+    av = np.where(v >= 0.0, v, -v)
+    f = a0 + b0 * av + c0 * av * av
+    f = np.where(v >= 0, f, -f)
+    if has_tab:
+        f = f + mg0 * g
+    if has_dist:
+        f = f + m0 * d
+    force = ST[:, ST_Z2] if order else ST[:, ST_W]
+    acc = acc_coef * force + -f * minv0
+    out[:] = np.where(ST[:, ST_STOPPED] != 0.0, 0.0, acc)
+
+
+def accel_loop(
+    ST: np.ndarray,
+    order: int,
+    K: np.ndarray,
+    g: np.ndarray,
+    has_tab: bool,
+    d: np.ndarray,
+    has_dist: bool,
+    out: np.ndarray,
+) -> None:
+    """:func:`accel_arrays` member by member (the source of its compiled twin)."""
+    for b in range(ST.shape[0]):
+        v = ST[b, ST_Z1]
+        av = v if v >= 0.0 else -v
+        f = K[0, b] + K[1, b] * av + K[2, b] * av * av
+        f = f if v >= 0 else -f
+        if has_tab:
+            f = f + K[3, b] * g[b]
+        if has_dist:
+            f = f + K[4, b] * d[b]
+        force = ST[b, ST_Z2] if order else ST[b, ST_W]
+        acc = K[6, b] * force + -f * K[5, b]
+        out[b] = 0.0 if ST[b, ST_STOPPED] != 0.0 else acc
+
+
+#: the name of the population's acceleration read-out in :data:`train_envs._jit.TWINS`
+BATCH_ACCEL = "plants.batch_accel"
+_jit.register(BATCH_ACCEL, accel_arrays, source=accel_loop)
 
 
 def batchable(plant: TrainPlant) -> bool:
@@ -211,11 +306,23 @@ class BatchSingleCar:
         self.ST = np.zeros((B, 9))
         for i, p in enumerate(plants):
             self.ST[i] = self._state_row(p)
-        self.work_traction_J = np.array([p.work_traction_J for p in plants])
-        self.work_brake_J = np.array([p.work_brake_J for p in plants])
+        #: the members' traction and braking work [J] (rows of one array)
+        self._work = np.array(
+            [[p.work_traction_J for p in plants], [p.work_brake_J for p in plants]], dtype=float
+        )
+        self.work_traction_J, self.work_brake_J = self._work[0], self._work[1]
         self.saturated = np.zeros(B, dtype=bool)
         self._kern = _jit.implementation(BATCH_CAR_STEP)
+        self._accel = _jit.implementation(BATCH_ACCEL)
+        self._zeros = np.zeros(B)
+        self._set_accel_constants()
         self._WD0 = np.zeros((B, 1))
+
+    def _set_accel_constants(self) -> None:
+        """Rows a, b, c, m g / 1000, m, 1/m', F/m' coefficient of :data:`BATCH_ACCEL`."""
+        self._ac = np.stack(
+            [self.a0, self.b0, self.c0, self.mg0, self.m0, self.minv0, self.acc_coef]
+        )
 
     def _state_row(self, p: TrainPlant) -> list[float]:
         """The state vector of :func:`run_single` of a reset plant ``p``."""
@@ -251,6 +358,7 @@ class BatchSingleCar:
         self.a0[b], self.b0[b], self.c0[b] = nl.a0, nl.b0, nl.c0
         self.mg0[b], self.m0[b], self.minv0[b] = nl.mg0, nl.m0, nl.minv0
         self.acc_coef[b], self.share0[b] = plant._acc_coef, plant._share0
+        self._set_accel_constants()
         self.ST[b] = self._state_row(plant)
         self.work_traction_J[b] = plant.work_traction_J
         self.work_brake_J[b] = plant.work_brake_J
@@ -288,20 +396,19 @@ class BatchSingleCar:
 
     def accel(self) -> np.ndarray:
         """Lead-car acceleration of each member [m/s²] (0 when held), as
-        :meth:`TrainPlant._accel_single`: ``F/m' + N(s, v, t)``."""
-        s, v = self.s, self.v
-        av = np.where(v >= 0.0, v, -v)
-        f = self.a0 + self.b0 * av + self.c0 * av * av
-        f = np.where(v >= 0, f, -f)
-        if self.has_tab:
-            f = f + self.mg0 * self.gradient(s)
+        :meth:`TrainPlant._accel_single`: ``F/m' + N(s, v, t)`` (:data:`BATCH_ACCEL`)."""
+        g = self.gradient(self.s) if self.has_tab else self._zeros
+        d = self._zeros
         if self.has_dist:
-            t = self.t.tolist()
-            f = f + self.m0 * np.array(
-                [p._nl.disturbance_sum(ti) for p, ti in zip(self.plants, t, strict=True)]
+            d = np.array(
+                [
+                    p._nl.disturbance_sum(ti)
+                    for p, ti in zip(self.plants, self.t.tolist(), strict=True)
+                ]
             )
-        acc = self.acc_coef * self.force + -f * self.minv0
-        return np.where(self.stopped, 0.0, acc)
+        out = np.empty(self.B)
+        self._accel(self.ST, self.order, self._ac, g, self.has_tab, d, self.has_dist, out)
+        return out
 
     def envelope(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(−B(v), F(v))`` of each member's own train at its speed ``v``."""
@@ -319,14 +426,7 @@ class BatchSingleCar:
         to the ``active`` members (a boolean mask); the others stay as they are."""
         k = self.plants[0]._substeps(duration_s)
         ST = self.ST
-        val = u * self.share0
         lo, hi = self.envelope(np.abs(ST[:, ST_Z1]))
-        lo = lo * self.share0
-        hi = hi * self.share0
-        w = np.where(val < lo, lo, val)
-        w = np.where(w > hi, hi, w)
-        self.saturated = np.where(active, w != val, self.saturated)
-        ST[:, ST_W] = np.where(active, w, ST[:, ST_W])
         WD = self._WD0
         if self.has_dist:
             WD = np.zeros((self.B, k + 1))
@@ -350,10 +450,10 @@ class BatchSingleCar:
             self.has_tab,
             WD,
             self.has_dist,
+            np.ascontiguousarray(u, dtype=float),
+            self.share0,
+            lo,
+            hi,
+            self.saturated,
+            self._work,
         )
-        self.work_traction_J = np.where(
-            active, self.work_traction_J + ST[:, ST_WT], self.work_traction_J
-        )
-        self.work_brake_J = np.where(active, self.work_brake_J + ST[:, ST_WB], self.work_brake_J)
-        ST[:, ST_WT] = 0.0
-        ST[:, ST_WB] = 0.0

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from train_envs import _jit
-from train_envs.controllers.batch import resistance_array, rules_batchable
-from train_envs.controllers.dmc.batch_law import COMMAND, PLAN, PREDICT
+from train_envs.controllers.batch import rules_batchable
+from train_envs.controllers.dmc.batch_law import COMMAND, FRONT, PLAN, PREDICT
 from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.dmc.qp import UNCONSTRAINED_INFO
 
@@ -74,6 +74,7 @@ class BatchDMC:
         self._qp_pool = qp_pool
         self._steps = np.arange(1, ref.P + 1)
         self._constants()
+        self._front = _jit.implementation(FRONT, compiled_twin=compiled_twin)
         self._predict = _jit.implementation(PREDICT, compiled_twin=compiled_twin)
         self._plan = _jit.implementation(PLAN, compiled_twin=compiled_twin)
         self._command = _jit.implementation(COMMAND, compiled_twin=compiled_twin)
@@ -102,6 +103,17 @@ class BatchDMC:
         level = 1.0 if ref.reference_form == "level" else 0.0
         classic = 1.0 if ref.classic_law else 0.0
         self._cp = np.array([ref.M, float(ref.qp.du_rows), level, classic])
+        sp, tr = ref._setpoint, ref.ctx.train
+        self._spc = np.array([1.0 if sp.catchup else 0.0, sp.gain, sp.c_max, sp.hold])
+        track = ref.ctx.track if ref._has_track else None
+        self._ffc = np.array(
+            [1.0 if ref.feedforward else 0.0, 0.0 if track is None else 1.0, ref._ff_lead,
+             tr.davis_a_N, tr.davis_b_Ns_per_m, tr.davis_c_Ns2_per_m2, ref.k_davis, ref._mG],
+            dtype=float,
+        )  # fmt: skip
+        self._track = (np.zeros(1),) * 6 if track is None else track.section_arrays()
+        self._row0 = np.zeros(self.B, dtype=np.int64)
+        self._no_fade = np.zeros((1, ref.P + 1))
         nan = math.nan
         jerk = nan if ref._jerk_du is None else ref._jerk_du
         du = nan if ref._du_step is None else ref._du_step
@@ -149,44 +161,28 @@ class BatchDMC:
         self._qp_ready: set[int] = set()
 
     # ------------------------------------------------------------------ laws
-    def _feedforward(self, s: np.ndarray, v: np.ndarray) -> np.ndarray:
-        ref = self.ref
-        if not ref.feedforward:
-            return np.zeros(s.shape)
-        ctx, tr = ref.ctx, ref.ctx.train
-        s_ff = s + np.where(0.0 > v, 0.0, v) * ref._ff_lead
-        if ref._has_track:
-            theta = np.asarray(ctx.track.equivalent_gradient_permil_at(s_ff), dtype=float)
-        else:
-            theta = np.zeros(s.shape)
-        return resistance_array(tr, v) - ref.k_davis * v + ref._mG * theta / 1000.0
-
-    def _setpoint(self, t: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(y_r(k), y_r(k+1 … k+P)) of :class:`~.setpoint.SetpointPreview` per member
-        (the time part read once per distinct time, :meth:`SetpointPreview.time_row`)."""
+    def _time_rows(
+        self, t: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(ri, V, S, F, H)`` of :data:`~.batch_law.FRONT`: the time rows of
+        :meth:`SetpointPreview.time_row` at the members' distinct times ``t`` (one in
+        lockstep) and each member's row."""
         sp = self.ref._setpoint
         t0 = t.item(0)
         if (t == t0).all():  # in lockstep
             v, s_ref, fade, held = sp.time_row(t0)
-            vv = v[None, :]
-        else:
-            ut, inv = np.unique(t, return_inverse=True)
-            parts = [sp.time_row(x) for x in ut.tolist()]
-            inv = inv.reshape(-1)
-            vv = np.stack([r[0] for r in parts])[inv]
-            s_ref = np.array([r[1] for r in parts])[inv]
-            fade = np.stack([r[2] for r in parts])[inv] if sp.catchup else None
-            held = np.stack([r[3] for r in parts])[inv]
-        if sp.catchup:
-            c = sp.gain * (s_ref - s)
-            c = np.where(-sp.c_max > c, -sp.c_max, c)
-            c = np.where(sp.c_max < c, sp.c_max, c)
-            y_all = vv + c[:, None] * fade
-        else:
-            y_all = np.repeat(vv, s.shape[0], axis=0) if vv.shape[0] == 1 else vv.copy()
-        if held.any():
-            y_all[np.broadcast_to(held, y_all.shape)] = -sp.hold
-        return y_all[:, 0], y_all[:, 1:]
+            F = fade[None] if fade is not None else self._no_fade
+            return self._row0[: t.shape[0]], v[None], np.array([s_ref]), F, held[None]
+        ut, inv = np.unique(t, return_inverse=True)
+        parts = [sp.time_row(x) for x in ut.tolist()]
+        F = np.stack([r[2] for r in parts]) if sp.catchup else self._no_fade
+        return (
+            inv.reshape(-1).astype(np.int64),
+            np.stack([r[0] for r in parts]),
+            np.array([r[1] for r in parts]),
+            F,
+            np.stack([r[3] for r in parts]),
+        )
 
     # ------------------------------------------------------------------ step
     def compute(
@@ -200,10 +196,10 @@ class BatchDMC:
         y = v
         if not np.all(np.isfinite(y)) or not np.all(np.isfinite(s)):
             raise ValueError("measured speed v_mps / position s_m must be finite")
-        y0_ref, y_r = self._setpoint(t, s)
-        y_r = np.ascontiguousarray(y_r)
-        ff = self._feedforward(s, y)
         n = len(ix)
+        y0_ref, y_r, ff = np.empty(n), np.empty((n, P)), np.empty(n)
+        self._front(s, y, *self._time_rows(t), self._spc, self._ffc, *self._track,
+                    y0_ref, y_r, ff)  # fmt: skip
         u_prev, h_c, J, alpha = (np.empty(n) for _ in range(4))
         yP0, y_pred = np.empty((n, P)), np.empty((n, P))
         self._predict(

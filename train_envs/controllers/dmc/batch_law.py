@@ -4,6 +4,10 @@ Each stage is registered in :data:`train_envs._jit.TWINS`: the numpy reference (
 operations over the members) and the member loop numba compiles, with the same
 signature and the single controller's IEEE operations in the same order:
 
+* :data:`FRONT`: the setpoint y_r(k), its preview y_r(k+1 … k+P) (from the time rows
+  of :meth:`~.setpoint.SetpointPreview.time_row`: catch-up and stop hold) and the
+  feedforward ``u_ff = R̂(v) − R'(v_nom) v + M g θ(s + max(v, 0) τ_ff) / 1000``
+  (:func:`~.laws.feedforward_force`, the track's equivalent gradient θ);
 * :data:`PREDICT`: error and filtered rate, h_c (rule base), the prediction vector
   moved, corrected and shifted, ``ŷ = ŷ_P0 + A [ΔU*(k−1)_{2…L}, 0]``, the satisfaction
   J (mean by numpy's pairwise sum) and the softening factor α;
@@ -29,13 +33,50 @@ import numpy as np
 from train_envs import _jit
 from train_envs.controllers.batch import locate_uniform, rule_cell
 from train_envs.controllers.fuzzy import trapmf
+from train_envs.lines.track import equivalent_gradient_1, equivalent_gradient_arrays
 from train_envs.plants.energy import np_sum
 
-__all__ = ["COMMAND", "PLAN", "PREDICT"]
+__all__ = ["COMMAND", "FRONT", "PLAN", "PREDICT"]
 
+FRONT = "controllers.dmc_batch_front"
 PREDICT = "controllers.dmc_batch_predict"
 PLAN = "controllers.dmc_batch_plan"
 COMMAND = "controllers.dmc_batch_command"
+
+
+def front_ref(
+    s, v, ri, V, S, F, H, spc, ffc, gp, gv, cp, ce, k0, k1, y0_o, y_r_o, ff_o,
+) -> None:  # fmt: skip
+    """Stage 0 at positions ``s`` and speeds ``v``: member ``r`` reads the time row
+    ``ri[r]`` of ``V`` (profile speeds now and over the preview, (m, P+1)), ``S``
+    (s_ref), ``F`` (the catch-up fade) and ``H`` (the stop-hold mask); ``spc`` = catch-up
+    (1/0), λ_x, c_max, stop hold; ``ffc`` = feedforward (1/0), track (1/0), τ_ff, the
+    Davis a, b, c, R'(v_nom), M g; ``gp … k1``: the track's section arrays
+    (:meth:`~train_envs.lines.track.Track.section_arrays`). Outputs y_r(k), the
+    preview and u_ff."""
+    catchup, gain, c_max, hold = spc.tolist()
+    y_all = V[ri]
+    if catchup:
+        c = gain * (S[ri] - s)
+        c = np.where(-c_max > c, -c_max, c)
+        c = np.where(c_max < c, c_max, c)
+        y_all = y_all + c[:, None] * F[ri]
+    held = H[ri]
+    if held.any():
+        y_all[held] = -hold
+    y0_o[:] = y_all[:, 0]
+    y_r_o[:] = y_all[:, 1:]
+    feed, track, lead, da, db, dc, kd, mG = ffc.tolist()
+    if not feed:
+        ff_o[:] = 0.0
+        return
+    s_ff = s + np.where(0.0 > v, 0.0, v) * lead
+    theta = (
+        equivalent_gradient_arrays(s_ff, gp, gv, cp, ce, k0, k1) if track else np.zeros(s.shape)
+    )
+    av = np.abs(v)
+    r = da + db * av + dc * av * av
+    ff_o[:] = np.where(v != 0, np.copysign(r, v), 0.0) - kd * v + mG * theta / 1000.0
 
 
 def predict_ref(
@@ -186,6 +227,42 @@ def _trap(x, a, b, c, d):
     m = up if up < down else down
     m = m if m < 1.0 else 1.0
     return m if m > 0.0 else 0.0
+
+
+def front_loop(
+    s, v, ri, V, S, F, H, spc, ffc, gp, gv, cp, ce, k0, k1, y0_o, y_r_o, ff_o,
+) -> None:  # fmt: skip
+    """:func:`front_ref` member by member (the source of its compiled twin)."""
+    catchup, gain, c_max, hold = spc[0] != 0.0, spc[1], spc[2], spc[3]
+    feed, track, lead = ffc[0] != 0.0, ffc[1] != 0.0, ffc[2]
+    da, db, dc, kd, mG = ffc[3], ffc[4], ffc[5], ffc[6], ffc[7]
+    P = y_r_o.shape[1]
+    for r in range(s.shape[0]):
+        i = ri[r]
+        c = 0.0
+        if catchup:
+            c = gain * (S[i] - s[r])
+            c = -c_max if -c_max > c else c
+            c = c_max if c_max < c else c
+        for k in range(P + 1):
+            x = V[i, k] + c * F[i, k] if catchup else V[i, k]
+            if H[i, k]:
+                x = -hold
+            if k == 0:
+                y0_o[r] = x
+            else:
+                y_r_o[r, k - 1] = x
+        if not feed:
+            ff_o[r] = 0.0
+            continue
+        vr = v[r]
+        theta = 0.0
+        if track:
+            s_ff = s[r] + (0.0 if 0.0 > vr else vr) * lead
+            theta = equivalent_gradient_1(s_ff, gp, gv, cp, ce, k0, k1)
+        av = abs(vr)
+        res = math.copysign(da + db * av + dc * av * av, vr) if vr != 0 else 0.0
+        ff_o[r] = res - kd * vr + mG * theta / 1000.0
 
 
 def predict_loop(
@@ -354,6 +431,12 @@ def _has_dgemv() -> bool:
     return _jit.numpy_dgemv() is not None
 
 
+_jit.register(
+    FRONT,
+    front_ref,
+    source=front_loop,
+    helpers={"bisect_right": _jit.bisect_right, "equivalent_gradient_1": equivalent_gradient_1},
+)
 _jit.register(
     PREDICT,
     predict_ref,
