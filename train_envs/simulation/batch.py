@@ -16,26 +16,138 @@ every value is the single runner's, member by member (tested).
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Mapping, Sequence
 from typing import Protocol
 
 import numpy as np
 
+from train_envs import _jit
 from train_envs.controllers.batch import per_time
 from train_envs.plants.batch import BatchSingleCar
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.multi_car import TrainPlant
+from train_envs.plants.single_car import ST_STOPPED, ST_T, ST_Z0, ST_Z1
 from train_envs.scenarios import Scenario
 from train_envs.simulation.loop import INFO_COLUMNS, scenario_metrics
-from train_envs.simulation.supervision import Supervision, permitted_speed_fn
+from train_envs.simulation.supervision import (
+    Supervision,
+    permitted_speed_fn,
+    permitted_speed_table,
+)
 
-__all__ = ["BatchController", "BatchLoop"]
+__all__ = ["DONE", "SUPERVISE", "BatchController", "BatchLoop"]
 
 _COLUMNS = (
     "t_s", "s_m", "v_mps", "a_mps2", "v_ref_mps", "s_ref_m", "v_limit_mps", "gradient_permil",
     "u_cmd_N", "u_N", "work_traction_J", "work_brake_J", "saturated",
     "atp_brake", "overspeed_mps", "overrun_m",
 )  # fmt: skip
+
+
+def supervise_arrays(
+    ix, s, v, pos, val, braking, interventions, sp, limit_o, brake_o, over_o, overrun_o,
+) -> None:  # fmt: skip
+    """The ATP and the record's limit columns of the members ``ix`` at positions ``s``
+    and speeds ``v``, numpy form (the reference of :data:`SUPERVISE`): the permitted
+    speed (the step function ``pos, val`` of
+    :func:`~.supervision.permitted_speed_table`), the ATP brake (it starts above the
+    limit plus the margin and holds while the speed exceeds the limit; ``braking`` and
+    the count ``interventions`` over all members, updated), the overspeed
+    ``max(v − limit, 0)`` and the overrun ``max(s − (s_stop + window), 0)``. ``sp`` =
+    ATP on (1/0), margin, stop (1/0), s_stop + window."""
+    atp, margin, has_stop, s_end = sp.tolist()
+    limit = val[np.maximum(np.searchsorted(pos, s, side="right") - 1, 0)]
+    brake = np.zeros(s.shape, dtype=bool)
+    if atp:
+        was = braking[ix]
+        start = ~was & (v > limit + margin)
+        brake = np.where(was, v > limit, start)
+        braking[ix] = brake
+        interventions[ix] += start
+    d = s - s_end
+    limit_o[:] = limit
+    brake_o[:] = brake
+    over_o[:] = np.where(v - limit > 0.0, v - limit, 0.0)
+    overrun_o[:] = np.where(d > 0.0, d, 0.0) if has_stop else 0.0
+
+
+def supervise_loop(
+    ix, s, v, pos, val, braking, interventions, sp, limit_o, brake_o, over_o, overrun_o,
+) -> None:  # fmt: skip
+    """:func:`supervise_arrays` member by member (the source of its compiled twin)."""
+    atp, margin, has_stop, s_end = sp[0] != 0.0, sp[1], sp[2] != 0.0, sp[3]
+    for r in range(s.shape[0]):
+        b = ix[r]
+        x, vr = s[r], v[r]
+        i = bisect_right(pos, x) - 1
+        lim = val[i if i > 0 else 0]
+        brake = False
+        if atp:
+            if braking[b]:
+                brake = vr > lim
+            elif vr > lim + margin:
+                brake = True
+                interventions[b] += 1
+            braking[b] = brake
+        limit_o[r] = lim
+        brake_o[r] = brake
+        over_o[r] = vr - lim if vr - lim > 0.0 else 0.0
+        d = x - s_end
+        overrun_o[r] = (d if d > 0.0 else 0.0) if has_stop else 0.0
+
+
+def done_arrays(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc) -> None:
+    """After the plant step of the members ``ix`` (commands ``u``): the last command
+    and the step count, then the runner's end of episode (over all members, updated):
+    terminated at rest after moving or beyond ``s_stop + overrun`` (stop scenarios),
+    else at the end time; truncated at the end time or the table's last row. ``dc`` =
+    stop (1/0), s_stop + overrun, t_max − 1e-9, the last step; ``ST``: the plant state
+    rows (:mod:`train_envs.plants.single_car` layout). Numpy form, the reference of
+    :data:`DONE`."""
+    has_stop, s_end, t_end, k_last = dc.tolist()
+    u_prev[ix] = u
+    k[ix] += 1
+    t, s, v = ST[ix, ST_T], ST[ix, ST_Z0], ST[ix, ST_Z1]
+    mv = moved[ix] | (v > 0.1)
+    moved[ix] = mv
+    if has_stop:
+        term = ((ST[ix, ST_STOPPED] != 0.0) & mv) | (s > s_end)
+    else:
+        term = t >= t_end
+    trunc = ~term & ((t >= t_end) | (k[ix] >= k_last))
+    terminated[ix] = term
+    truncated[ix] = trunc
+    done[ix] = term | trunc
+
+
+def done_loop(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc) -> None:
+    """:func:`done_arrays` member by member (the source of its compiled twin)."""
+    has_stop, s_end, t_end, k_last = dc[0] != 0.0, dc[1], dc[2], dc[3]
+    for r in range(ix.shape[0]):
+        b = ix[r]
+        u_prev[b] = u[r]
+        k[b] += 1
+        t, x, vr = ST[b, ST_T], ST[b, ST_Z0], ST[b, ST_Z1]
+        mv = moved[b] or vr > 0.1
+        moved[b] = mv
+        if has_stop:
+            term = (ST[b, ST_STOPPED] != 0.0 and mv) or x > s_end
+        else:
+            term = t >= t_end
+        trunc = (not term) and (t >= t_end or k[b] >= k_last)
+        terminated[b] = term
+        truncated[b] = trunc
+        done[b] = term or trunc
+
+
+#: the names of the runner's supervision and end-of-step twins in :data:`_jit.TWINS`
+SUPERVISE = "simulation.batch_supervise"
+DONE = "simulation.batch_done"
+_jit.register(
+    SUPERVISE, supervise_arrays, source=supervise_loop, helpers={"bisect_right": _jit.bisect_right}
+)
+_jit.register(DONE, done_arrays, source=done_loop)
 
 
 class BatchController(Protocol):
@@ -91,6 +203,19 @@ class BatchLoop:
         self.atp_interventions = np.zeros(B, dtype=np.int64)
         self._window = sc.stop_window()
         self._limit = permitted_speed_fn(sc)
+        self._limit_table = permitted_speed_table(sc)
+        sv = self.supervision
+        has_stop = sc.s_stop_m is not None
+        self._sp = np.array(
+            [1.0 if sv.atp else 0.0, sv.margin_mps, 1.0 if has_stop else 0.0,
+             sc.s_stop_m + self._window if has_stop else 0.0]
+        )  # fmt: skip
+        self._dc = np.array(
+            [1.0 if has_stop else 0.0, sc.s_stop_m + sc.overrun_m if has_stop else 0.0,
+             sc.t_max_s - 1e-9, float(self.n_max - 1)]
+        )  # fmt: skip
+        self._supervise = _jit.implementation(SUPERVISE)
+        self._done = _jit.implementation(DONE)
         self._grad = gradient_table(sc.track)
         # one (steps, columns, members) table: the runner's columns, then INFO_COLUMNS
         self._table = np.full((self.n_max, len(_COLUMNS) + len(INFO_COLUMNS), B), np.nan)
@@ -126,9 +251,6 @@ class BatchLoop:
         d = s - (sc.s_stop_m + self._window)
         return np.where(d > 0.0, d, 0.0)
 
-    def _limits(self, s: np.ndarray) -> np.ndarray:
-        return np.asarray(self._limit(s), dtype=float)
-
     def _active(self) -> np.ndarray:
         act = ~self.done
         if self.max_steps is not None:
@@ -146,51 +268,50 @@ class BatchLoop:
         if ix.size == 0:
             return act
         p, sc = self.plant, self.scenario
+        full = ix.size == self.B
+        sel = slice(None) if full else ix  # (the members' own rows, without a gather)
         t = t_all = p.t[ix]
         s, v = p.s[ix], p.v[ix]
-        a = p.accel()[ix]
+        a = p.accel()[sel]
         u_N = p.force[ix]
         u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix])
         u = np.asarray(u, dtype=float)
-        if not np.all(np.isfinite(u)):
+        if not np.isfinite(u).all():
             raise ValueError(f"batched controller returned a non-finite command {u}")
-        limit = self._limits(s)
-        brake = np.zeros(ix.size, dtype=bool)
-        if self.supervision.atp:
-            was = self._braking[ix]
-            start = ~was & (v > limit + self.supervision.margin_mps)
-            brake = np.where(was, v > limit, start)
-            self._braking[ix] = brake
-            self.atp_interventions[ix] += start
-            if brake.any():
-                lo, _ = sc.train.envelope_N(v)
-                u = np.where(brake, lo, u)
+        n = ix.size
+        limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
+        brake = np.empty(n, dtype=bool)
+        pos, val = self._limit_table
+        self._supervise(ix, s, v, pos, val, self._braking, self.atp_interventions, self._sp,
+                        limit, brake, over, overrun)  # fmt: skip
+        if brake.any():
+            lo, _ = sc.train.envelope_N(v)
+            u = np.where(brake, lo, u)
         k = self.k[ix]
-        ref = sc.reference
+        v_ref, s_ref = self._reference(t, s)
         row = [
             t_all,
             s,
             v,
             a,
-            self._v_ref(t, s),
-            per_time(t, ref.s_ref),
+            v_ref,
+            s_ref,
             limit,
             self._grad(s),
             u,
             u_N,
-            p.work_traction_J[ix],
-            p.work_brake_J[ix],
-            p.saturated[ix],
+            p.work_traction_J[sel],
+            p.work_brake_J[sel],
+            p.saturated[sel],
             brake,
-            np.where(v - limit > 0.0, v - limit, 0.0),
-            self._overrun(s),
+            over,
+            overrun,
         ]  # in the order of _COLUMNS
         keys, cols = self._columns(tuple(info))
         if keys:
             row += [info[key] for key in keys]
         vals = np.array(row, dtype=float)
         k0 = int(k[0])
-        full = ix.size == self.B
         if full and (k == k0).all():  # the whole population at one step
             self._table[k0, cols] = vals
         elif (k == k0).all():
@@ -200,11 +321,10 @@ class BatchLoop:
         if "fallback" in info:  # what an env step reports of the last control step
             for j, key in enumerate(("fallback", "slack_max", "iterations")):
                 if key in info:
-                    self._last[ix, j] = info[key]
+                    self._last[sel, j] = info[key]
         p.step(u if full else np.where(act, self._scatter(u, ix), 0.0), self.dt, act)
-        self.u_prev[ix] = u
-        self.k[ix] += 1
-        self._check_done(ix)
+        self._done(ix, u, p.ST, self.u_prev, self.k, self._moved, self.terminated,
+                   self.truncated, self.done, self._dc)  # fmt: skip
         return act
 
     def _columns(self, given: tuple[str, ...]) -> tuple[list[str], np.ndarray]:
@@ -240,25 +360,17 @@ class BatchLoop:
         out[ix] = x
         return out
 
-    def _v_ref(self, t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    def _reference(self, t: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The reference speed and position of each member (at its time or position)."""
         ref = self.scenario.reference
         if ref.mode == "distance":
-            return np.array([ref.v_ref(0.0, x) for x in s.tolist()])
-        return per_time(t, lambda x: ref.v_ref(x, 0.0))
-
-    def _check_done(self, ix: np.ndarray) -> None:
-        sc, p = self.scenario, self.plant
-        t, s, v = p.t[ix], p.s[ix], p.v[ix]
-        moved = self._moved[ix] | (v > 0.1)
-        self._moved[ix] = moved
-        if sc.s_stop_m is not None:
-            term = (p.stopped[ix] & moved) | (s > sc.s_stop_m + sc.overrun_m)
-        else:
-            term = t >= sc.t_max_s - 1e-9
-        trunc = ~term & ((t >= sc.t_max_s - 1e-9) | (self.k[ix] >= self.n_max - 1))
-        self.terminated[ix] = term
-        self.truncated[ix] = trunc
-        self.done[ix] = term | trunc
+            return np.array([ref.v_ref(0.0, x) for x in s.tolist()]), per_time(t, ref.s_ref)
+        t0 = t.item(0)
+        if (t == t0).all():  # in lockstep
+            n = t.shape[0]
+            return np.full(n, ref.v_ref(t0, 0.0)), np.full(n, ref.s_ref(t0))
+        vs = per_time(t, lambda x: (ref.v_ref(x, 0.0), ref.s_ref(x)))
+        return vs[:, 0], vs[:, 1]
 
     def run(self) -> None:
         """Step until every member's episode is over (or capped)."""

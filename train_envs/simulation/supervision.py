@@ -34,7 +34,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from train_envs.lines.limits import effective_limit_fn
+import numpy as np
+
+from train_envs.lines.limits import effective_limit_fn, effective_limit_table
 from train_envs.scenarios import Scenario
 from train_envs.trains import KMH
 
@@ -74,6 +76,12 @@ def permitted_speed_mps(scenario: Scenario, s_m: float) -> float:
     """The permitted speed [m/s] for the train whose head is at ``s_m``: the track's
     speed limit there (the one limit query of the runner, its record and the ATP)."""
     return float(permitted_speed_fn(scenario)(s_m))
+
+
+def permitted_speed_table(scenario: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """The step function of :func:`permitted_speed_fn` as ``(positions, limits)``: the
+    limit at ``s`` is ``limits[max(i, 0)]`` with ``i`` the last position ``≤ s``."""
+    return effective_limit_table(scenario.track, scenario.train.length_m)
 
 
 def permitted_speed_fn(scenario: Scenario) -> Callable[[float], float]:

@@ -194,7 +194,7 @@ class BatchDMC:
         ref = self.ref
         P = ref.P
         y = v
-        if not np.all(np.isfinite(y)) or not np.all(np.isfinite(s)):
+        if not (np.isfinite(y).all() and np.isfinite(s).all()):
             raise ValueError("measured speed v_mps / position s_m must be finite")
         n = len(ix)
         y0_ref, y_r, ff = np.empty(n), np.empty((n, P)), np.empty(n)
@@ -225,9 +225,9 @@ class BatchDMC:
         for r in np.flatnonzero(~ok).tolist():  # the QP, member by member
             b = int(ix[r])
             u_a[r], info[r], self.dU_shift[b, :-1] = self._qp_step(
-                b, w[r], yP0[r], float(u_prev[r]), lo_a[r], hi_a[r]
+                b, w[r], yP0[r], u_prev.item(r), lo_a[r], hi_a[r]
             )
-        if np.all(y >= 0.0):  # |y| is the plan's first speed
+        if (y >= 0.0).all():  # |y| is the plan's first speed
             lo_y, hi_y = np.ascontiguousarray(lo[:, 0]), np.ascontiguousarray(hi[:, 0])
         else:
             lo_y, hi_y = self._envelope.bounds(y)
@@ -256,7 +256,7 @@ class BatchDMC:
         if self._pending[b]:
             qp.core.adopt_unconstrained(self._dU_last[b].copy(), self._lev_last[b].reshape(-1, 1))
             self._pending[b] = False
-        sol = qp.optimise(w.tolist(), yP0.tolist(), u_prev, lo.tolist(), hi.tolist())
+        sol = qp.optimise(w, yP0, u_prev, lo, hi)
         U = sol.U[:, 0]
         fields = np.array(
             [sol.solve_time_s, sol.iterations, float(sol.fallback), sol.slack_max, sol.status_val],
