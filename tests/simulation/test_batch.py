@@ -19,10 +19,10 @@ from train_envs.controllers.batch import BatchFuzzyPID, BatchPID
 from train_envs.controllers.dmc.batch import BatchDMC
 from train_envs.envs.batch import evaluate_env_params_batch, supports_batch
 from train_envs.envs.evaluation import evaluate_env_params
-from train_envs.plants.batch import BATCH_CAR_STEP, BatchSingleCar
+from train_envs.plants.batch import BATCH_ACCEL, BATCH_CAR_STEP, BatchSingleCar
 from train_envs.scenarios import DisturbanceSpec, build_plant, get_scenario
 from train_envs.simulation import ClosedLoop, run_to_end
-from train_envs.simulation.batch import BatchLoop
+from train_envs.simulation.batch import DONE, SUPERVISE, BatchLoop
 
 STEPS = 150  # control steps of the closed-loop comparisons
 
@@ -43,6 +43,7 @@ def test_batch_plant_equals_single_plants(name, compiled):
     refs = [build_plant(sc, np.random.default_rng(s)) for s in range(B)]
     bp = BatchSingleCar([build_plant(sc, np.random.default_rng(s)) for s in range(B)])
     bp._kern = _jit.implementation(BATCH_CAR_STEP, compiled_twin=compiled)
+    bp._accel = _jit.implementation(BATCH_ACCEL, compiled_twin=compiled)
     rng = np.random.default_rng(0)
     for k in range(120):
         u = rng.uniform(-1.0, 1.0, B) * 4e5 * (1.0 if k < 60 else -1.0)
@@ -117,7 +118,7 @@ def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list, compil
     pool = _members(ctrl_name, sc, [{}] * len(params_list), **kw)
     qp_steps = []
     if ctrl_name == "dmc":
-        # the DMC's three stages: compiled twins or numpy references
+        # the DMC's stages: compiled twins or numpy references
         ctrl = BatchDMC(ref, full, pool.__getitem__, compiled_twin=compiled)
         orig = ctrl._qp_step
         ctrl._qp_step = lambda b, *a: (qp_steps.append(b), orig(b, *a))[1]
@@ -125,6 +126,11 @@ def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list, compil
         ctrl = (BatchPID if ctrl_name == "pid" else BatchFuzzyPID)(ref, full)
     plants = [build_plant(sc, np.random.default_rng(s)) for s in seeds]
     loop = BatchLoop(sc, plants, ctrl, max_steps=STEPS)
+    # the runner's and the plant's twins: compiled or numpy references
+    loop._supervise = _jit.implementation(SUPERVISE, compiled_twin=compiled)
+    loop._done = _jit.implementation(DONE, compiled_twin=compiled)
+    loop.plant._kern = _jit.implementation(BATCH_CAR_STEP, compiled_twin=compiled)
+    loop.plant._accel = _jit.implementation(BATCH_ACCEL, compiled_twin=compiled)
     loop.run()
     for b, (arrays, metrics) in enumerate(singles):
         got = loop.arrays(b)
@@ -172,3 +178,27 @@ def test_invalid_parameters_raise_as_the_single_evaluation_does():
         evaluate_env_params(env_id, {"kp": -1.0}, seeds=[0], config={"max_episode_steps": 2})
     with pytest.raises(ValueError, match="kp"):
         evaluate_env_params_batch(env_id, [{}, {"kp": -1.0}], [0], {"max_episode_steps": 2})
+
+
+@pytest.mark.skipif(not _jit.enabled(), reason="numba disabled")
+def test_supervision_twin_equals_its_reference_through_brake_starts_and_holds():
+    rng = np.random.default_rng(4)
+    pos, val = np.array([0.0, 300.0, 800.0]), np.array([12.0, 20.0, 8.0])
+    B = 64
+    ix = np.sort(rng.choice(B, 40, replace=False))
+    state = {c: (np.zeros(B, dtype=bool), np.zeros(B, dtype=np.int64)) for c in (True, False)}
+    for step in range(30):
+        s = rng.uniform(-50.0, 1200.0, ix.size)
+        v = rng.uniform(0.0, 25.0, ix.size)
+        sp = np.array([1.0 if step % 7 else 0.0, 0.5, 1.0 if step % 2 else 0.0, 1000.0])
+        out = {}
+        for compiled in (True, False):
+            fn = _jit.implementation(SUPERVISE, compiled_twin=compiled)
+            o = [np.empty(ix.size), np.empty(ix.size, dtype=bool), np.empty(ix.size),
+                 np.empty(ix.size)]  # fmt: skip
+            fn(ix, s, v, pos, val, *state[compiled], sp, *o)
+            out[compiled] = o
+        for a, b in zip(out[True], out[False], strict=True):
+            assert np.array_equal(a, b)
+        assert all(np.array_equal(a, b) for a, b in zip(*state.values(), strict=True))
+    assert state[True][1].sum() > 0 and state[True][0].any()
