@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -22,6 +22,9 @@ class Reference:
 
     profile: SpeedProfile
     mode: str = "time"
+    _at: dict[float, tuple[float, float]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         if self.mode not in ("distance", "time"):
@@ -34,6 +37,17 @@ class Reference:
 
     def s_ref(self, t: float) -> float:
         return float(self.profile.s_at_t(t))
+
+    def at_time(self, t: float) -> tuple[float, float]:
+        """``(v_ref(t, ·), s_ref(t))`` of a time-indexed reference, remembered per time
+        (the profile is read-only: a population in lockstep and the next one on the same
+        grid of times read it once per time)."""
+        hit = self._at.get(t)
+        if hit is None:
+            if len(self._at) >= 16384:
+                self._at.clear()
+            hit = self._at[t] = (float(self.profile.v_at_t(t)), float(self.profile.s_at_t(t)))
+        return hit
 
     def preview_time(self, t0: float, dt: float, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Reference (s, v) at times t0 + dt, ..., t0 + n dt (for predictive controllers)."""

@@ -286,6 +286,8 @@ class BatchSingleCar:
         self.XL, self.Y0L, self.SL = (np.concatenate([t[j] for t in tabs]) for j in range(3))
         self._tables = [p.gradient_permil for p in plants]
         self._same_table = all(g is self._tables[0] for g in self._tables)
+        #: the one gradient table of every member (None: several, or none)
+        self.table = self._tables[0] if self._same_table else None
         self.BL = np.stack([p._buffer[:, 0] for p in plants])
         self.heads = np.array([p._head for p in plants], dtype=np.int64)
         # per-member constants of the read-outs (NonlinearTerm.single, the envelope)
@@ -397,6 +399,11 @@ class BatchSingleCar:
     def accel(self) -> np.ndarray:
         """Lead-car acceleration of each member [m/s²] (0 when held), as
         :meth:`TrainPlant._accel_single`: ``F/m' + N(s, v, t)`` (:data:`BATCH_ACCEL`)."""
+        return self.accel_gradient()[0]
+
+    def accel_gradient(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(accel(), gradient(s))``: the accelerations and the gradients [‰] at the
+        members' positions that they contain (zeros without a table)."""
         g = self.gradient(self.s) if self.has_tab else self._zeros
         d = self._zeros
         if self.has_dist:
@@ -408,7 +415,7 @@ class BatchSingleCar:
             )
         out = np.empty(self.B)
         self._accel(self.ST, self.order, self._ac, g, self.has_tab, d, self.has_dist, out)
-        return out
+        return out, g
 
     def envelope(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(−B(v), F(v))`` of each member's own train at its speed ``v``."""

@@ -272,7 +272,10 @@ class BatchLoop:
         sel = slice(None) if full else ix  # (the members' own rows, without a gather)
         t = t_all = p.t[ix]
         s, v = p.s[ix], p.v[ix]
-        a = p.accel()[sel]
+        a_all, g_all = p.accel_gradient()
+        a = a_all[sel]
+        # the record's gradient: the plant's own reading where it is the same table
+        grad = g_all[sel] if p.table is self._grad else self._grad(s)
         u_N = p.force[ix]
         u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix])
         u = np.asarray(u, dtype=float)
@@ -297,7 +300,7 @@ class BatchLoop:
             v_ref,
             s_ref,
             limit,
-            self._grad(s),
+            grad,
             u,
             u_N,
             p.work_traction_J[sel],
@@ -368,8 +371,9 @@ class BatchLoop:
         t0 = t.item(0)
         if (t == t0).all():  # in lockstep
             n = t.shape[0]
-            return np.full(n, ref.v_ref(t0, 0.0)), np.full(n, ref.s_ref(t0))
-        vs = per_time(t, lambda x: (ref.v_ref(x, 0.0), ref.s_ref(x)))
+            v0, s0 = ref.at_time(t0)
+            return np.full(n, v0), np.full(n, s0)
+        vs = per_time(t, ref.at_time)
         return vs[:, 0], vs[:, 1]
 
     def run(self) -> None:

@@ -113,6 +113,7 @@ class BatchDMC:
         )  # fmt: skip
         self._track = (np.zeros(1),) * 6 if track is None else track.section_arrays()
         self._row0 = np.zeros(self.B, dtype=np.int64)
+        self._info0 = np.tile(np.asarray(UNCONSTRAINED_INFO, dtype=float), (self.B, 1))
         self._no_fade = np.zeros((1, ref.P + 1))
         nan = math.nan
         jerk = nan if ref._jerk_du is None else ref._jerk_du
@@ -197,38 +198,36 @@ class BatchDMC:
         if not (np.isfinite(y).all() and np.isfinite(s).all()):
             raise ValueError("measured speed v_mps / position s_m must be finite")
         n = len(ix)
-        y0_ref, y_r, ff = np.empty(n), np.empty((n, P)), np.empty(n)
+        vec = np.empty((7, n))  # one block for the per-member outputs of the stages
+        y0_ref, ff, u_prev, h_c, J, alpha, u_a = vec
+        mat = np.empty((7, n, P))
+        y_r, yP0, y_pred, v_plan, w, lo_a, hi_a = mat
         self._front(s, y, *self._time_rows(t), self._spc, self._ffc, *self._track,
                     y0_ref, y_r, ff)  # fmt: skip
-        u_prev, h_c, J, alpha = (np.empty(n) for _ in range(4))
-        yP0, y_pred = np.empty((n, P)), np.empty((n, P))
         self._predict(
             ix, y, y0_ref, y_r, ff, u_prev_N, self.started, self.e_prev, self.edot,
             self.u_prev2, self.ff_prev, self.yN0, self.dU_shift, self.par, self._a,
             self._A_dyn, self._Ch, self._rc, self._sc, self._gemv,
-            u_prev, h_c, yP0, y_pred, J, alpha,
+            u_prev, h_c, yP0, y_pred, J, alpha, v_plan,
         )  # fmt: skip
         ai = alpha[:, None] ** self._steps  # numpy's power, as the single law
-        w, lo_a, hi_a = np.empty((n, P)), np.empty((n, P)), np.empty((n, P))
         ok = np.empty(n, dtype=bool)
-        u_a = np.empty(n)
         # the envelope at the plan's speeds (the measured one, then the predictions)
-        v_plan = np.concatenate([y[:, None], y_pred[:, :-1]], axis=1)
-        lo, hi = self._envelope.bounds(np.where(v_plan > 0.0, v_plan, 0.0))
+        lo, hi = self._envelope.bounds(v_plan)
         self._plan(
             ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, self._K, lo, hi, self._cp,
             self.dU_shift, self._dU_last, self._lev_last, self._pending, self._gemv,
             w, lo_a, hi_a, ok, u_a,
         )  # fmt: skip
-        info = np.empty((n, len(UNCONSTRAINED_INFO)))
-        info[:] = UNCONSTRAINED_INFO
-        for r in np.flatnonzero(~ok).tolist():  # the QP, member by member
-            b = int(ix[r])
-            u_a[r], info[r], self.dU_shift[b, :-1] = self._qp_step(
-                b, w[r], yP0[r], u_prev.item(r), lo_a[r], hi_a[r]
-            )
+        info = self._info0[:n].copy()
+        if not ok.all():
+            for r in np.flatnonzero(~ok).tolist():  # the QP, member by member
+                b = int(ix[r])
+                u_a[r], info[r], self.dU_shift[b, :-1] = self._qp_step(
+                    b, w[r], yP0[r], u_prev.item(r), lo_a[r], hi_a[r]
+                )
         if (y >= 0.0).all():  # |y| is the plan's first speed
-            lo_y, hi_y = np.ascontiguousarray(lo[:, 0]), np.ascontiguousarray(hi[:, 0])
+            lo_y, hi_y = lo[:, 0], hi[:, 0]
         else:
             lo_y, hi_y = self._envelope.bounds(y)
         u = np.empty(n)

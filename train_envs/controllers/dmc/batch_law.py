@@ -82,12 +82,15 @@ def front_ref(
 def predict_ref(
     ix, y, y0_ref, y_r, ff, u_prev_N, started, e_prev, edot_s, u_prev2_s, ff_prev, yN0_s,
     dU_shift, par, a, A_dyn, Ch, rc, sc, gemv, u_prev_o, h_c_o, yP0_o, y_pred_o, J_o, alpha_o,
+    v_plan_o,
 ) -> None:  # fmt: skip
     """Stage 1 of the members ``ix`` (state arrays over all B members, updated in
     place; outputs ``*_o`` one row per member of ``ix``). ``par`` rows: k_e, k_ec, h0,
     k_h, trend, α_lo, α_hi; ``rc``: the two uniform partitions (lo, h, n, hi) each;
     ``sc``: k_f, Δt, h_min, M, k_davis, tail ratio, e_tol, ė_tol, t_big, μ_t corners,
-    μ_y corners, combine "min" (1/0), μ_y symmetric (1/0)."""
+    μ_y corners, combine "min" (1/0), μ_y symmetric (1/0). ``v_plan_o``: the plan's
+    speeds ``max(·, 0)`` of the measured one and the first P − 1 predictions (where
+    the caller reads the envelope)."""
     kf, dt, h_min, M, k_davis, tail = sc[:6].tolist()
     e_tol, edot_tol, t_big = sc[6:9].tolist()
     ta, tb, tc, td, ya, yb, yc, yd, cmin, sym = sc[9:19].tolist()
@@ -154,6 +157,8 @@ def predict_ref(
     y_pred_o[:] = y_pred
     J_o[:] = J
     alpha_o[:] = lo + (par[6, ix] - lo) * f
+    v_plan = np.concatenate([y[:, None], y_pred[:, :-1]], axis=1)
+    v_plan_o[:] = np.where(v_plan > 0.0, v_plan, 0.0)
 
 
 def plan_ref(
@@ -268,6 +273,7 @@ def front_loop(
 def predict_loop(
     ix, y, y0_ref, y_r, ff, u_prev_N, started, e_prev, edot_s, u_prev2_s, ff_prev, yN0_s,
     dU_shift, par, a, A_dyn, Ch, rc, sc, gemv, u_prev_o, h_c_o, yP0_o, y_pred_o, J_o, alpha_o,
+    v_plan_o,
 ) -> None:  # fmt: skip
     """:func:`predict_ref` member by member (the source of its compiled twin)."""
     kf, dt, h_min, M, k_davis, tail = sc[0], sc[1], sc[2], sc[3], sc[4], sc[5]
@@ -318,9 +324,13 @@ def predict_loop(
             yN0_s[b, k] = out[k]
         started[b] = True
         gemv(102, 112, L, Pm, 1.0, A_dyn.ctypes, L, dU_shift[b].ctypes, 1, 0.0, tmp.ctypes, 1)
+        v_plan_o[r, 0] = yv if yv > 0.0 else 0.0
         for k in range(P):
             yP0_o[r, k] = out[k]
-            y_pred_o[r, k] = out[k] + tmp[k]
+            yp = out[k] + tmp[k]
+            y_pred_o[r, k] = yp
+            if k < P - 1:
+                v_plan_o[r, k + 1] = yp if yp > 0.0 else 0.0
         # satisfaction
         ae, aed = abs(e), abs(ed)
         if ae <= sc[6] and aed <= sc[7]:
