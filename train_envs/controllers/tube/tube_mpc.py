@@ -300,10 +300,12 @@ class TubeMPC(Controller):
                 prob.mpc, prob.tight, prob.H_N = fresh.mpc, fresh.tight, fresh.H_N
                 prob.frames = None
                 prob.qp_stale = False
+                prob.w_bar = -1.0  # a new tube: its bounds follow
             else:
+                # the tube (fixed K) and the limits are the same: so are the tightened
+                # bounds of an unchanged w̄ (TubeProblem.set_disturbance_bound)
                 prob.qp_stale = True
             self._set_cost(prob)
-            prob.w_bar = -1.0
             prob.explicit = None
         # (a change below 1e-12 relative -- an env's action round trip -- only updates
         # the key: no rebuild)
