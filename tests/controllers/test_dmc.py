@@ -542,3 +542,24 @@ def test_classic_law_steps_are_the_qp_optimum():
         assert a.metrics[key] == pytest.approx(b.metrics[key], rel=1e-3), key
     with pytest.raises(ValueError, match="classic_law"):
         DMCController(classic_law="yes")
+
+
+def test_preview_time_rows_give_the_setpoints_and_survive_resets():
+    sc = get_scenario("paper004_urban")
+    ctrl = make_controller("dmc", sc)
+    ctrl.reset(sc.control_context())
+    sp = ctrl._setpoint
+    t_end = sp.t_end
+    for t in [0.0, 3.7, 50.0, t_end - 2.0, t_end - 0.1, t_end, t_end + 4.0]:
+        for s in [0.0, 120.0, 900.0]:
+            v_ref, y0, y_r = sp(t, s)
+            v, s_ref, fade, held = sp.time_row(t)
+            assert v[0] == v_ref
+            c = min(max(sp.gain * (s_ref - s), -sp.c_max), sp.c_max)
+            row = np.where(held, -sp.hold, v + c * fade)
+            assert [row[0], *row[1:].tolist()] == [y0, *y_r]
+    assert sp.time_row(3.7) is sp.time_row(3.7)  # remembered
+    ctrl.reset(sc.control_context())
+    assert ctrl._setpoint is sp  # the same reference: the same preview, its rows kept
+    ref = sc.reference
+    assert ref.at_time(3.7) == (ref.v_ref(3.7, 0.0), ref.s_ref(3.7))
