@@ -402,9 +402,18 @@ class TubeMPC(Controller):
         self._term_idx = np.asarray(self.settings.terminal_steps, dtype=int)
         self._E4 = self._model.E[:, 0].copy()
         self._minus_E4 = -self._E4
-        self._layout = StageLayout(
-            self._n_grid, l, self._model, self._inv_dt, self._minus_E4, self._term_idx
-        )
+        old = getattr(self, "_layout", None)
+        if not (
+            old is not None
+            and old.model is self._model
+            and (old.n_grid, old.l, old.inv_dt) == (self._n_grid, l, self._inv_dt)
+            and np.array_equal(old.term_idx, self._term_idx)
+        ):
+            # (the same layout again is kept: the problems' closed-form frames are made
+            # per layout object, and a reset of the same structure keeps its problems)
+            self._layout = StageLayout(
+                self._n_grid, l, self._model, self._inv_dt, self._minus_E4, self._term_idx
+            )
         # a line with one speed limit (paper 001): the limit row is the same every step
         lims = None if ctx.track is None else np.unique(ctx.track.speed_limits_mps)
         self._v_lim_const = (
