@@ -6,9 +6,9 @@
 module docstrings) for B members of one scenario with one whole-train input, each with
 its own gains and state, elementwise over the members with the single controller's
 operations (every member equals its single controller bit for bit, tested). The helpers
-are the array forms the batched DMC (:mod:`.dmc.batch`) shares: the reference read-out,
-the nominal resistance and feedforward, Python's ``min(max(x, lo), hi)`` and the rule
-base's active cell.
+are their array forms: the reference read-out, the nominal resistance and feedforward,
+Python's ``min(max(x, lo), hi)``, the rule base's active cell (:func:`rules_batchable`
+also decides for the batched DMC, :mod:`.dmc.batch`).
 """
 
 from __future__ import annotations

@@ -9,10 +9,11 @@ own command; the ETD2 sub-steps are those of
 :func:`train_envs.plants.single_car.run_single` (the equations are in
 :mod:`train_envs.plants.multi_car` and :mod:`train_envs.plants.integrator`), run for
 each member by the registered batch step :data:`BATCH_CAR_STEP` (compiled where numba
-is available: one call for the whole population). The read-outs (position, speed,
-acceleration, force, work) are arrays over the members, computed with the same IEEE
-operations as the single plant's float paths, so every member equals its single plant
-bit for bit (tested).
+is available: one call for the whole population, which also clips each command to its
+member's envelope and sums the work). The read-outs (position, speed, acceleration
+from the twin :data:`BATCH_ACCEL`, force, work) are arrays over the members, computed
+with the same IEEE operations as the single plant's float paths, so every member equals
+its single plant bit for bit (tested).
 """
 
 from __future__ import annotations

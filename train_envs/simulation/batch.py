@@ -7,7 +7,9 @@ together (:class:`~train_envs.plants.batch.BatchSingleCar`), a batched controlle
 operations, the ATP supervises each member (:mod:`.supervision`), and the rows are
 recorded into one (steps × members) array per column. A member whose episode is over
 (the runner's termination and truncation, or the step cap) stops stepping; the others
-go on. :meth:`BatchLoop.arrays` gives each member the columns of
+go on. The ATP, the limit columns and the end-of-step checks run in the registered
+twins :data:`SUPERVISE` and :data:`DONE` (numpy references, compiled member loops).
+:meth:`BatchLoop.arrays` gives each member the columns of
 :meth:`ClosedLoop.arrays`, :meth:`BatchLoop.metrics` its
 :func:`~train_envs.metrics.episode_metrics`. The runner adds no arithmetic of its own:
 every value is the single runner's, member by member (tested).

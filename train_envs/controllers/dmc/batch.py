@@ -4,10 +4,11 @@
 with the online correction h_c, satisfaction J, softening α and feedforward; the
 equations are in :mod:`.laws`, :mod:`.prediction` and :mod:`.setpoint`) for B members
 that share the structure (train, horizons, weights, timing) and the control instant,
-each with its own seven tunable parameters and its own state. The setpoint preview and
-the feedforward are array operations over the members; the rest of the law runs in the
-three stages of :mod:`.batch_law` (registered twins: a numpy reference and a compiled
-member loop), with the single controller's operations and its matrix-vector products
+each with its own seven tunable parameters and its own state. The law runs in the
+four stages of :mod:`.batch_law` (registered twins: a numpy reference and a compiled
+member loop; the setpoint preview's time part comes from
+:meth:`~.setpoint.SetpointPreview.time_row`, once per distinct time), with the single
+controller's operations and its matrix-vector products
 ``A ΔU`` and ``K e_w`` (numpy's own ``dgemv``): every member equals its single
 controller bit for bit (tested). A member whose plan leaves the rate box or the
 envelope solves its QP on its own :class:`~.qp.DMCProblem` (OSQP, as the single
