@@ -721,14 +721,8 @@ __getattr__, __dir__ = lazy_exports(
 
 
 def equivalent_gradient_arrays(
-    x: np.ndarray,
-    gr_pos: np.ndarray,
-    gr_val: np.ndarray,
-    cv_pos: np.ndarray,
-    cv_end: np.ndarray,
-    cv_k0: np.ndarray,
-    cv_k1: np.ndarray,
-) -> np.ndarray:
+    x, gr_pos, gr_val, cv_pos, cv_end, cv_k0, cv_k1,
+) -> np.ndarray:  # fmt: skip
     """:meth:`Track.equivalent_gradient_permil_at` at the positions ``x`` (1-D) from the
     track's section arrays, numpy form: the reference of :data:`EQUIVALENT_GRADIENT`."""
     g = gr_val[np.maximum(np.searchsorted(gr_pos, x, side="right") - 1, 0)]
@@ -740,15 +734,7 @@ def equivalent_gradient_arrays(
     return g + np.where(ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0, CURVE_RESISTANCE_COEFF * ak, 0.0)
 
 
-def equivalent_gradient_1(
-    s: float,
-    gr_pos: np.ndarray,
-    gr_val: np.ndarray,
-    cv_pos: np.ndarray,
-    cv_end: np.ndarray,
-    cv_k0: np.ndarray,
-    cv_k1: np.ndarray,
-) -> float:
+def equivalent_gradient_1(s, gr_pos, gr_val, cv_pos, cv_end, cv_k0, cv_k1) -> float:  # fmt: skip
     """:func:`equivalent_gradient_arrays` at one position ``s`` (the same IEEE
     operations; a helper of compiled loops)."""
     ig = bisect_right(gr_pos, s) - 1
@@ -778,14 +764,8 @@ def equivalent_gradient_1(
 
 
 def equivalent_gradient_loop(
-    x: np.ndarray,
-    gr_pos: np.ndarray,
-    gr_val: np.ndarray,
-    cv_pos: np.ndarray,
-    cv_end: np.ndarray,
-    cv_k0: np.ndarray,
-    cv_k1: np.ndarray,
-) -> np.ndarray:
+    x, gr_pos, gr_val, cv_pos, cv_end, cv_k0, cv_k1,
+) -> np.ndarray:  # fmt: skip
     """:func:`equivalent_gradient_arrays` position by position (:func:`equivalent_gradient_1`):
     the source of the compiled twin of :data:`EQUIVALENT_GRADIENT`."""
     out = np.empty(x.shape[0])

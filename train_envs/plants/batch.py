@@ -48,27 +48,9 @@ BATCH_CAR_STEP = "plants.batch_car_step"
 
 
 def run_batch(
-    ST: np.ndarray,
-    BL: np.ndarray,
-    heads: np.ndarray,
-    active: np.ndarray,
-    k: int,
-    order: int,
-    C: np.ndarray,
-    XL: np.ndarray,
-    Y0L: np.ndarray,
-    SL: np.ndarray,
-    offs: np.ndarray,
-    has_tab: bool,
-    WD: np.ndarray,
-    has_dist: bool,
-    u: np.ndarray,
-    share: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    sat: np.ndarray,
-    work: np.ndarray,
-) -> None:
+    ST, BL, heads, active, k, order, C, XL, Y0L, SL, offs, has_tab, WD, has_dist, u, share,
+    lo, hi, sat, work,
+) -> None:  # fmt: skip
     """:func:`~train_envs.plants.single_car.run_single` for every active member ``b``:
     state row ``ST[b]``, buffer ``BL[b]``, head ``heads[b]``, constants ``C[b]``, the
     gradient table ``XL[offs[b]:offs[b+1]]`` (and ``Y0L``, ``SL``), disturbance sums
@@ -108,27 +90,9 @@ def run_batch(
 
 
 def batch_car_step(
-    ST: np.ndarray,
-    BL: np.ndarray,
-    heads: np.ndarray,
-    active: np.ndarray,
-    k: int,
-    order: int,
-    C: np.ndarray,
-    XL: np.ndarray,
-    Y0L: np.ndarray,
-    SL: np.ndarray,
-    offs: np.ndarray,
-    has_tab: bool,
-    WD: np.ndarray,
-    has_dist: bool,
-    u: np.ndarray,
-    share: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    sat: np.ndarray,
-    work: np.ndarray,
-) -> None:
+    ST, BL, heads, active, k, order, C, XL, Y0L, SL, offs, has_tab, WD, has_dist, u, share,
+    lo, hi, sat, work,
+) -> None:  # fmt: skip
     """:func:`run_batch` through the single car's reference step (Python floats), member
     by member: the reference of the compiled twin."""
     for b in np.flatnonzero(active).tolist():
@@ -179,16 +143,7 @@ _jit.register(
 )
 
 
-def accel_arrays(
-    ST: np.ndarray,
-    order: int,
-    K: np.ndarray,
-    g: np.ndarray,
-    has_tab: bool,
-    d: np.ndarray,
-    has_dist: bool,
-    out: np.ndarray,
-) -> None:
+def accel_arrays(ST, order, K, g, has_tab, d, has_dist, out) -> None:  # fmt: skip
     """Each member's acceleration ``F/m' + N(s, v, t)`` [m/s²] (0 when held) into
     ``out``, numpy form: the reference of :data:`BATCH_ACCEL`. ``K`` rows: Davis a, b, c
     per member, m g / 1000, m, 1/m', the force coefficient; ``g``: the gradients [‰] at
@@ -207,16 +162,7 @@ def accel_arrays(
     out[:] = np.where(ST[:, ST_STOPPED] != 0.0, 0.0, acc)
 
 
-def accel_loop(
-    ST: np.ndarray,
-    order: int,
-    K: np.ndarray,
-    g: np.ndarray,
-    has_tab: bool,
-    d: np.ndarray,
-    has_dist: bool,
-    out: np.ndarray,
-) -> None:
+def accel_loop(ST, order, K, g, has_tab, d, has_dist, out) -> None:  # fmt: skip
     """:func:`accel_arrays` member by member (the source of its compiled twin)."""
     for b in range(ST.shape[0]):
         v = ST[b, ST_Z1]
