@@ -230,3 +230,34 @@ def test_compiled_doubling_equals_reference(n_cars):
         K = np.linalg.solve(R + Ba.T @ H1 @ Ba, Ba.T @ H1 @ Aa)
         res = Aa.T @ H1 @ Aa - Aa.T @ H1 @ Ba @ K + Qa - H1
         assert np.abs(res).max() <= 1e-8 * np.abs(H1).max()
+
+
+def test_stage_weights_fill_the_block_diagonal_stage_by_stage():
+    from train_envs.mpc.assembly import _psd_sqrt, _stage_weights
+
+    rng = np.random.default_rng(7)
+    A = rng.normal(size=(3, 3))
+    full = A @ A.T
+    blocks = [
+        (rng.uniform(0.1, 3.0, 6), 6, np.diag([2.0, 0.0, 5.0])),
+        (None, 4, np.array([[0.3]])),
+        (rng.uniform(0.5, 2.0, 5), 5, np.array([[1.5]])),
+        (None, 1, full),
+    ]
+    wt = _stage_weights(blocks)
+    # the same matrices written stage by stage
+    facs = [_psd_sqrt(X) for _, _, X in blocks]
+    n = sum(k * X.shape[0] for _, k, X in blocks)
+    W = np.zeros((n, n))
+    Lw = np.zeros((sum(k * L.shape[0] for (_, k, _), L in zip(blocks, facs, strict=True)), n))
+    r = c = 0
+    for (scales, k, X), L in zip(blocks, facs, strict=True):
+        for t in range(k):
+            s_t = 1.0 if scales is None else float(scales[t])
+            W[c : c + X.shape[0], c : c + X.shape[0]] = s_t * X if scales is not None else X
+            Lw[r : r + L.shape[0], c : c + X.shape[0]] = (
+                float(np.sqrt(scales[t])) * L if scales is not None else L
+            )
+            r += L.shape[0]
+            c += X.shape[0]
+    assert np.array_equal(wt.W, W) and np.array_equal(wt.Lw, Lw)

@@ -169,19 +169,20 @@ def _stage_weights(blocks: list[tuple[np.ndarray | None, int, np.ndarray]]) -> _
         d, rl = X.shape[0], L.shape[0]
         if first_full is None and not _is_diagonal(X):
             first_full = (c, r)
+        # the k diagonal blocks at once: W[c:, c:] and Lw[r:, c:] as (k, d, k, d) and
+        # (k, rl, k, d) views, the blocks on their diagonal (stage by stage the same
+        # products s_t X and sqrt(s_t) L)
+        t = np.arange(k)
+        Wb = W[c : c + k * d, c : c + k * d].reshape(k, d, k, d)
+        Lb = Lw[r : r + k * rl, c : c + k * d].reshape(k, rl, k, d)
         if scales is None:
-            for _ in range(k):
-                W[c : c + d, c : c + d] = X
-                Lw[r : r + rl, c : c + d] = L
-                r += rl
-                c += d
+            Wb[t, :, t, :] = X
+            Lb[t, :, t, :] = L
         else:
-            roots = np.sqrt(scales).tolist()
-            for t, s_t in enumerate(scales.tolist()):
-                W[c : c + d, c : c + d] = s_t * X
-                Lw[r : r + rl, c : c + d] = roots[t] * L
-                r += rl
-                c += d
+            Wb[t, :, t, :] = scales[:, None, None] * X
+            Lb[t, :, t, :] = np.sqrt(scales)[:, None, None] * L
+        r += k * rl
+        c += k * d
     return _ResidualWeight(W, Lw, *(first_full or (c, r)))
 
 
