@@ -27,6 +27,7 @@ __all__ = [
     "BatchFuzzyPID",
     "BatchPID",
     "clip_like",
+    "davis_array",
     "per_time",
     "resistance_array",
     "rule_outputs",
@@ -41,8 +42,14 @@ def clip_like(x: np.ndarray, lo: np.ndarray | float, hi: np.ndarray | float) -> 
 
 def resistance_array(train: TrainParams, v: np.ndarray) -> np.ndarray:
     """:meth:`TrainParams.resistance_N` elementwise: ``sign(v) R(|v|)``, 0 at rest."""
+    return davis_array(train.davis_a_N, train.davis_b_Ns_per_m, train.davis_c_Ns2_per_m2, v)
+
+
+def davis_array(a: float, b: float, c: float, v: np.ndarray) -> np.ndarray:
+    """``sign(v) (a + b|v| + c|v|²)`` elementwise, 0 at rest (:func:`resistance_array` of
+    the coefficients)."""
     av = np.abs(v)
-    r = train.davis_a_N + train.davis_b_Ns_per_m * av + train.davis_c_Ns2_per_m2 * av * av
+    r = a + b * av + c * av * av
     return np.where(v != 0, np.copysign(r, v), 0.0)
 
 

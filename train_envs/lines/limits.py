@@ -27,6 +27,7 @@ from typing import Protocol
 
 import numpy as np
 
+from train_envs.lines.track import section_index
 from train_envs.validation import check_nonnegative
 
 
@@ -84,8 +85,7 @@ def _step_function(pos: np.ndarray, val: np.ndarray) -> Callable:
         if isinstance(s, (float, int)):
             i = bisect_right(pl, s) - 1
             return vl[i if i > 0 else 0]
-        i = np.searchsorted(pos, np.asarray(s, float), side="right")
-        return val[np.maximum(i - 1, 0)]
+        return val[section_index(pos, s)]
 
     return limit_at
 

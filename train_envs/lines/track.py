@@ -83,8 +83,7 @@ def _step_lookup(
         if isinstance(s, _SCALAR):
             i = bisect_right(getattr(self, pos_list), s) - 1
             return getattr(self, val_list)[i if i > 0 else 0]
-        i = np.searchsorted(getattr(self, pos_array), np.asarray(s, float), side="right")
-        return getattr(self, val_array)[np.maximum(i - 1, 0)]
+        return getattr(self, val_array)[section_index(getattr(self, pos_array), s)]
 
     lookup.__doc__ = doc
     return lookup
@@ -380,15 +379,8 @@ class Track:
             frac = 0.0 if frac < 0.0 else (1.0 if frac > 1.0 else frac)
             return k0 + (k1 - k0) * frac
         x = np.asarray(s, float)
-        i = np.maximum(np.searchsorted(self.curve_positions_m, x, side="right") - 1, 0)
-        return self._curvature_in_section(i, x)
-
-    def _curvature_in_section(self, i: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Curvature of curve section(s) ``i`` evaluated at ``x`` (clamped to the section)."""
-        p = self.curve_positions_m[i]
-        frac = np.clip((x - p) / (self._cv_end_arr[i] - p), 0.0, 1.0)
-        k0 = self._cv_k0_arr[i]
-        return k0 + (self._cv_k1_arr[i] - k0) * frac
+        cv = self.section_arrays()[2:]
+        return curvature_in_section(section_index(cv[0], x), x, *cv)
 
     def curve_resistance_permil_at(self, s: FloatOrArray) -> FloatOrArray:
         """Curve resistance per unit weight [N/kN = permil] at ``s`` [m].
@@ -404,8 +396,7 @@ class Track:
         if isinstance(k, float):
             ak = abs(k)
             return CURVE_RESISTANCE_COEFF * ak if ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0 else 0.0
-        ak = np.abs(k)
-        return np.where(ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0, CURVE_RESISTANCE_COEFF * ak, 0.0)
+        return curve_resistance_of(k)
 
     def equivalent_gradient_permil_at(self, s: FloatOrArray) -> FloatOrArray:
         """Gradient plus curve resistance as an equivalent gradient [permil].
@@ -552,8 +543,8 @@ class Track:
         start, end = bp[:-1], bp[1:]
         mid = 0.5 * (start + end)
         k_start = self.curvature_at(start)
-        sec = np.maximum(np.searchsorted(self.curve_positions_m, start, side="right") - 1, 0)
-        k_end = self._curvature_in_section(sec, end)  # the piece's own section at its end
+        cv = self.section_arrays()[2:]
+        k_end = curvature_in_section(section_index(cv[0], start), end, *cv)  # its own section
         v = self.speed_limit_at(start)
         return pd.DataFrame(
             {
@@ -720,18 +711,38 @@ __getattr__, __dir__ = lazy_exports(
 )
 
 
+def section_index(pos: np.ndarray, x: FloatOrArray) -> np.ndarray:
+    """The section of each position ``x`` among section starts ``pos`` (the last start
+    ``<= x``; the first section before ``pos[0]``): the array look-up of every
+    piecewise table of a track."""
+    return np.maximum(np.searchsorted(pos, np.asarray(x, float), side="right") - 1, 0)
+
+
+def curvature_in_section(
+    i: np.ndarray, x: np.ndarray, cv_pos: np.ndarray, cv_end: np.ndarray,
+    cv_k0: np.ndarray, cv_k1: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """Curvature [1/m] of curve sections ``i`` at ``x`` (clamped to the section): linear
+    from ``cv_k0`` at the section start to ``cv_k1`` at its end."""
+    p = cv_pos[i]
+    frac = np.clip((x - p) / (cv_end[i] - p), 0.0, 1.0)
+    k0 = cv_k0[i]
+    return k0 + (cv_k1[i] - k0) * frac
+
+
+def curve_resistance_of(k: np.ndarray) -> np.ndarray:
+    """Curve resistance [‰] of curvatures ``k`` (:meth:`Track.curve_resistance_permil_at`)."""
+    ak = np.abs(k)
+    return np.where(ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0, CURVE_RESISTANCE_COEFF * ak, 0.0)
+
+
 def equivalent_gradient_arrays(
     x, gr_pos, gr_val, cv_pos, cv_end, cv_k0, cv_k1,
 ) -> np.ndarray:  # fmt: skip
     """:meth:`Track.equivalent_gradient_permil_at` at the positions ``x`` (1-D) from the
     track's section arrays, numpy form: the reference of :data:`EQUIVALENT_GRADIENT`."""
-    g = gr_val[np.maximum(np.searchsorted(gr_pos, x, side="right") - 1, 0)]
-    i = np.maximum(np.searchsorted(cv_pos, x, side="right") - 1, 0)
-    p = cv_pos[i]
-    frac = np.clip((x - p) / (cv_end[i] - p), 0.0, 1.0)
-    k0 = cv_k0[i]
-    ak = np.abs(k0 + (cv_k1[i] - k0) * frac)
-    return g + np.where(ak * CURVE_RESISTANCE_MAX_RADIUS_M >= 1.0, CURVE_RESISTANCE_COEFF * ak, 0.0)
+    k = curvature_in_section(section_index(cv_pos, x), x, cv_pos, cv_end, cv_k0, cv_k1)
+    return gr_val[section_index(gr_pos, x)] + curve_resistance_of(k)
 
 
 def equivalent_gradient_1(s, gr_pos, gr_val, cv_pos, cv_end, cv_k0, cv_k1) -> float:  # fmt: skip

@@ -26,6 +26,7 @@ import numpy as np
 
 from train_envs import _jit
 from train_envs.controllers.batch import per_time
+from train_envs.lines.track import section_index
 from train_envs.plants.batch import BatchSingleCar
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.multi_car import TrainPlant
@@ -34,6 +35,7 @@ from train_envs.scenarios import Scenario
 from train_envs.simulation.loop import INFO_COLUMNS, scenario_metrics
 from train_envs.simulation.supervision import (
     Supervision,
+    overrun_m,
     permitted_speed_fn,
     permitted_speed_table,
 )
@@ -59,7 +61,7 @@ def supervise_arrays(
     ``max(v − limit, 0)`` and the overrun ``max(s − (s_stop + window), 0)``. ``sp`` =
     ATP on (1/0), margin, stop (1/0), s_stop + window."""
     atp, margin, has_stop, s_end = sp.tolist()
-    limit = val[np.maximum(np.searchsorted(pos, s, side="right") - 1, 0)]
+    limit = val[section_index(pos, s)]
     brake = np.zeros(s.shape, dtype=bool)
     if atp:
         was = braking[ix]
@@ -246,13 +248,6 @@ class BatchLoop:
         self._last[b] = np.nan
         self._table[:, :, b] = np.nan
 
-    def _overrun(self, s: np.ndarray) -> np.ndarray:
-        sc = self.scenario
-        if sc.s_stop_m is None:
-            return np.zeros(s.shape)
-        d = s - (sc.s_stop_m + self._window)
-        return np.where(d > 0.0, d, 0.0)
-
     def _active(self) -> np.ndarray:
         act = ~self.done
         if self.max_steps is not None:
@@ -410,7 +405,7 @@ class BatchLoop:
             saturated=0.0,
             atp_brake=0.0,
             overspeed_mps=max(v - limit, 0.0),
-            overrun_m=float(self._overrun(np.array([s]))[0]),
+            overrun_m=overrun_m(s, sc.s_stop_m, self._window),
         )
         out = {}
         for name, arr in cols.items():

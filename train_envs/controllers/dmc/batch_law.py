@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from train_envs import _jit
-from train_envs.controllers.batch import locate_uniform, rule_cell
+from train_envs.controllers.batch import davis_array, locate_uniform, rule_cell
 from train_envs.controllers.fuzzy import trapmf
 from train_envs.lines.track import equivalent_gradient_1, equivalent_gradient_arrays
 from train_envs.plants.energy import np_sum
@@ -74,9 +74,7 @@ def front_ref(
     theta = (
         equivalent_gradient_arrays(s_ff, gp, gv, cp, ce, k0, k1) if track else np.zeros(s.shape)
     )
-    av = np.abs(v)
-    r = da + db * av + dc * av * av
-    ff_o[:] = np.where(v != 0, np.copysign(r, v), 0.0) - kd * v + mG * theta / 1000.0
+    ff_o[:] = davis_array(da, db, dc, v) - kd * v + mG * theta / 1000.0
 
 
 def predict_ref(
