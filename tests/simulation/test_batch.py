@@ -22,7 +22,7 @@ from train_envs.envs.evaluation import evaluate_env_params
 from train_envs.plants.batch import BATCH_ACCEL, BATCH_CAR_STEP, BatchSingleCar
 from train_envs.scenarios import DisturbanceSpec, build_plant, get_scenario
 from train_envs.simulation import ClosedLoop, run_to_end
-from train_envs.simulation.batch import DONE, SUPERVISE, BatchLoop
+from train_envs.simulation.batch import STEP_END, SUPERVISE, BatchLoop
 
 STEPS = 150  # control steps of the closed-loop comparisons
 
@@ -126,10 +126,9 @@ def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list, compil
         ctrl = (BatchPID if ctrl_name == "pid" else BatchFuzzyPID)(ref, full)
     plants = [build_plant(sc, np.random.default_rng(s)) for s in seeds]
     loop = BatchLoop(sc, plants, ctrl, max_steps=STEPS)
-    # the runner's and the plant's twins: compiled or numpy references
-    loop._supervise = _jit.implementation(SUPERVISE, compiled_twin=compiled)
-    loop._done = _jit.implementation(DONE, compiled_twin=compiled)
-    loop.plant._kern = _jit.implementation(BATCH_CAR_STEP, compiled_twin=compiled)
+    # the runner's end of step (supervision, record, plant step, checks) and the plant's
+    # read-out: compiled twins or numpy references
+    loop._end = _jit.implementation(STEP_END, compiled_twin=compiled)
     loop.plant._accel = _jit.implementation(BATCH_ACCEL, compiled_twin=compiled)
     loop.run()
     for b, (arrays, metrics) in enumerate(singles):

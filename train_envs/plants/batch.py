@@ -18,6 +18,7 @@ its single plant bit for bit (tested).
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Sequence
 
 import numpy as np
@@ -41,7 +42,14 @@ from train_envs.plants.single_car import (
     single_car_step,
 )
 
-__all__ = ["BATCH_ACCEL", "BATCH_CAR_STEP", "BatchSingleCar", "batch_car_step"]
+__all__ = [
+    "BATCH_ACCEL",
+    "BATCH_CAR_STEP",
+    "CAR_STEP_HELPERS",
+    "BatchSingleCar",
+    "batch_car_step",
+    "run_batch",
+]
 
 #: the name of the batch step in :data:`train_envs._jit.TWINS`
 BATCH_CAR_STEP = "plants.batch_car_step"
@@ -128,27 +136,34 @@ def batch_car_step(
         BL[b] = bl
 
 
-_jit.register(
-    BATCH_CAR_STEP,
-    batch_car_step,
-    source=run_batch,
-    helpers={
-        "bisect_right": _jit.bisect_right,
-        "davis_signed_N": davis_signed_N,
-        "_nonlinear": _nonlinear,
-        "_crossing_time": _crossing_time,
-        "_jumps": _jumps,
-        "run_single": run_single,
-    },
-)
+#: the functions :func:`run_batch` calls, by name (for the compiled loops that call it)
+CAR_STEP_HELPERS = {
+    "bisect_right": _jit.bisect_right,
+    "davis_signed_N": davis_signed_N,
+    "_nonlinear": _nonlinear,
+    "_crossing_time": _crossing_time,
+    "_jumps": _jumps,
+    "run_single": run_single,
+}
+_jit.register(BATCH_CAR_STEP, batch_car_step, source=run_batch, helpers=CAR_STEP_HELPERS)
 
 
-def accel_arrays(ST, order, K, g, has_tab, d, has_dist, out) -> None:  # fmt: skip
-    """Each member's acceleration ``F/m' + N(s, v, t)`` [m/s²] (0 when held) into
-    ``out``, numpy form: the reference of :data:`BATCH_ACCEL`. ``K`` rows: Davis a, b, c
-    per member, m g / 1000, m, 1/m', the force coefficient; ``g``: the gradients [‰] at
-    the members' positions; ``d``: their disturbance sums."""
+def accel_arrays(ST, order, K, XL, Y0L, SL, offs, has_tab, d, has_dist, g, out) -> None:
+    """Each member's gradient [‰] at its position into ``g`` (its table ``XL[offs[b]:
+    offs[b+1]]``, ``Y0L``, ``SL``: :class:`~train_envs.plants.lookup.PiecewiseLinear`'s
+    ``y0[i] + slope[i] (s − x[i])``; 0 without tables) and its acceleration
+    ``F/m' + N(s, v, t)`` [m/s²] (0 when held) into ``out``, numpy form: the reference
+    of :data:`BATCH_ACCEL`. ``K`` rows: Davis a, b, c per member, m g / 1000, m, 1/m',
+    the force coefficient; ``d``: the members' disturbance sums."""
     v = ST[:, ST_Z1]
+    if has_tab:
+        s = ST[:, ST_Z0]
+        for b in range(ST.shape[0]):  # (each member's own table)
+            o0 = int(offs[b])
+            i = o0 + int(XL[o0 : offs[b + 1]].searchsorted(s[b], side="right")) - 1
+            g[b] = Y0L[i] + SL[i] * (s[b] - XL[i])
+    else:
+        g[:] = 0.0
     a0, b0, c0, mg0, m0, minv0, acc_coef = K
     av = np.where(v >= 0.0, v, -v)
     f = a0 + b0 * av + c0 * av * av
@@ -162,15 +177,22 @@ def accel_arrays(ST, order, K, g, has_tab, d, has_dist, out) -> None:  # fmt: sk
     out[:] = np.where(ST[:, ST_STOPPED] != 0.0, 0.0, acc)
 
 
-def accel_loop(ST, order, K, g, has_tab, d, has_dist, out) -> None:  # fmt: skip
+def accel_loop(ST, order, K, XL, Y0L, SL, offs, has_tab, d, has_dist, g, out) -> None:
     """:func:`accel_arrays` member by member (the source of its compiled twin)."""
     for b in range(ST.shape[0]):
         v = ST[b, ST_Z1]
+        gb = 0.0
+        if has_tab:
+            o0 = offs[b]
+            x = ST[b, ST_Z0]
+            i = o0 + bisect_right(XL[o0 : offs[b + 1]], x) - 1
+            gb = Y0L[i] + SL[i] * (x - XL[i])
+        g[b] = gb
         av = v if v >= 0.0 else -v
         f = K[0, b] + K[1, b] * av + K[2, b] * av * av
         f = f if v >= 0 else -f
         if has_tab:
-            f = f + K[3, b] * g[b]
+            f = f + K[3, b] * gb
         if has_dist:
             f = f + K[4, b] * d[b]
         force = ST[b, ST_Z2] if order else ST[b, ST_W]
@@ -180,7 +202,9 @@ def accel_loop(ST, order, K, g, has_tab, d, has_dist, out) -> None:  # fmt: skip
 
 #: the name of the population's acceleration read-out in :data:`train_envs._jit.TWINS`
 BATCH_ACCEL = "plants.batch_accel"
-_jit.register(BATCH_ACCEL, accel_arrays, source=accel_loop)
+_jit.register(
+    BATCH_ACCEL, accel_arrays, source=accel_loop, helpers={"bisect_right": _jit.bisect_right}
+)
 
 
 def batchable(plant: TrainPlant) -> bool:
@@ -351,7 +375,6 @@ class BatchSingleCar:
     def accel_gradient(self) -> tuple[np.ndarray, np.ndarray]:
         """``(accel(), gradient(s))``: the accelerations and the gradients [‰] at the
         members' positions that they contain (zeros without a table)."""
-        g = self.gradient(self.s) if self.has_tab else self._zeros
         d = self._zeros
         if self.has_dist:
             d = np.array(
@@ -360,9 +383,14 @@ class BatchSingleCar:
                     for p, ti in zip(self.plants, self.t.tolist(), strict=True)
                 ]
             )
-        out = np.empty(self.B)
-        self._accel(self.ST, self.order, self._ac, g, self.has_tab, d, self.has_dist, out)
+        out, g = np.empty(self.B), np.empty(self.B)
+        self._accel(self.ST, self.order, self._ac, self.XL, self.Y0L, self.SL, self.offs,
+                    self.has_tab, d, self.has_dist, g, out)  # fmt: skip
         return out, g
+
+    def single_train(self) -> object | None:
+        """The train of every member (None where the members run on several)."""
+        return self._groups[0][0] if len(self._groups) == 1 else None
 
     def envelope(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(−B(v), F(v))`` of each member's own train at its speed ``v``."""
@@ -378,6 +406,16 @@ class BatchSingleCar:
     def step(self, u: np.ndarray, duration_s: float, active: np.ndarray) -> None:
         """Apply the total commands ``u`` [N] (held, one per member) for ``duration_s``
         to the ``active`` members (a boolean mask); the others stay as they are."""
+        head, tail = self.step_args(duration_s, active)
+        self._kern(*head, np.ascontiguousarray(u, dtype=float), *tail)
+
+    def step_args(self, duration_s: float, active: np.ndarray) -> tuple[tuple, tuple]:
+        """The arguments of :data:`BATCH_CAR_STEP` for one :meth:`step` of ``duration_s``
+        of the ``active`` members, before and after the commands ``u``: ``(ST, BL,
+        heads, active, k, order, C, XL, Y0L, SL, offs, has_tab, WD, has_dist)`` and
+        ``(share, lo, hi, sat, work)``, with the envelope read at the members' speeds
+        and the disturbance sums of the sub-steps (a caller that runs the step inside
+        its own compiled loop passes them on)."""
         k = self.plants[0]._substeps(duration_s)
         ST = self.ST
         lo, hi = self.envelope(np.abs(ST[:, ST_Z1]))
@@ -389,25 +427,6 @@ class BatchSingleCar:
                 for j in range(k + 1):
                     WD[b, j] = p._nl.disturbance_sum(tj)
                     tj += self.h
-        self._kern(
-            ST,
-            self.BL,
-            self.heads,
-            active,
-            k,
-            self.order,
-            self.C,
-            self.XL,
-            self.Y0L,
-            self.SL,
-            self.offs,
-            self.has_tab,
-            WD,
-            self.has_dist,
-            np.ascontiguousarray(u, dtype=float),
-            self.share0,
-            lo,
-            hi,
-            self.saturated,
-            self._work,
-        )
+        head = (ST, self.BL, self.heads, active, k, self.order, self.C, self.XL, self.Y0L,
+                self.SL, self.offs, self.has_tab, WD, self.has_dist)  # fmt: skip
+        return head, (self.share0, lo, hi, self.saturated, self._work)

@@ -27,7 +27,12 @@ import numpy as np
 from train_envs import _jit
 from train_envs.controllers.batch import per_time
 from train_envs.lines.track import section_index
-from train_envs.plants.batch import BatchSingleCar
+from train_envs.plants.batch import (
+    CAR_STEP_HELPERS,
+    BatchSingleCar,
+    batch_car_step,
+    run_batch,
+)
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.multi_car import TrainPlant
 from train_envs.plants.single_car import ST_STOPPED, ST_T, ST_Z0, ST_Z1
@@ -154,6 +159,99 @@ _jit.register(
 _jit.register(DONE, done_arrays, source=done_loop)
 
 
+def step_end_arrays(
+    ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, table, k, pos, val, braking,
+    interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs,
+    has_tab, WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated,
+    done, dc,
+) -> None:  # fmt: skip
+    """The runner's end of one control step of the members ``ix`` with the controller's
+    commands ``u``, numpy form (the reference of :data:`STEP_END`): the ATP and the
+    limit columns (:func:`supervise_arrays`; a braking member's command replaced by
+    ``lo_brake[b]``, the lower envelope bound of the scenario's train at its speed),
+    the record row of each member (the columns of ``_COLUMNS`` from ``t … u_N``, the
+    limit columns and the plant's work and saturation before the step, then the info
+    rows ``info_rows`` into the table columns ``icols``) at its step ``k[b]`` of ``table``
+    (steps × columns × members), the plant step
+    (:func:`~train_envs.plants.batch.batch_car_step`, arguments ``ST … has_dist`` and
+    ``share … work`` of :meth:`~train_envs.plants.batch.BatchSingleCar.step_args`,
+    inactive members' commands 0) and the end-of-step checks (:func:`done_arrays`)."""
+    n = ix.shape[0]
+    limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
+    brake = np.empty(n, dtype=bool)
+    supervise_arrays(ix, s, v, pos, val, braking, interventions, sp, limit, brake, over, overrun)
+    u = np.where(brake, lo_brake[ix], u)
+    row = [t, s, v, a, v_ref, s_ref, limit, grad, u, u_N, work[0, ix], work[1, ix], sat[ix],
+           brake, over, overrun]  # fmt: skip
+    vals = np.concatenate([np.array(row, dtype=float), info_rows])
+    cols = np.concatenate([np.arange(len(row)), icols])
+    table[k[ix][None, :], cols[:, None], ix[None, :]] = vals
+    uf = np.zeros(ST.shape[0])
+    uf[ix] = u
+    batch_car_step(ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab, WD,
+                   has_dist, uf, share, lo, hi, sat, work)  # fmt: skip
+    done_arrays(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc)
+
+
+def step_end_loop(
+    ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, table, k, pos, val, braking,
+    interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs,
+    has_tab, WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated,
+    done, dc,
+) -> None:  # fmt: skip
+    """:func:`step_end_arrays` member by member (the source of its compiled twin)."""
+    n = ix.shape[0]
+    limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
+    brake = np.empty(n, dtype=np.bool_)
+    supervise_loop(ix, s, v, pos, val, braking, interventions, sp, limit, brake, over, overrun)
+    uo = np.empty(n)
+    uf = np.zeros(ST.shape[0])
+    m = info_rows.shape[0]
+    for r in range(n):
+        b = ix[r]
+        ur = lo_brake[b] if brake[r] else u[r]
+        uo[r] = ur
+        uf[b] = ur
+        kb = k[b]
+        table[kb, 0, b] = t[r]
+        table[kb, 1, b] = s[r]
+        table[kb, 2, b] = v[r]
+        table[kb, 3, b] = a[r]
+        table[kb, 4, b] = v_ref[r]
+        table[kb, 5, b] = s_ref[r]
+        table[kb, 6, b] = limit[r]
+        table[kb, 7, b] = grad[r]
+        table[kb, 8, b] = ur
+        table[kb, 9, b] = u_N[r]
+        table[kb, 10, b] = work[0, b]
+        table[kb, 11, b] = work[1, b]
+        table[kb, 12, b] = 1.0 if sat[b] else 0.0
+        table[kb, 13, b] = 1.0 if brake[r] else 0.0
+        table[kb, 14, b] = over[r]
+        table[kb, 15, b] = overrun[r]
+        for j in range(m):
+            table[kb, icols[j], b] = info_rows[j, r]
+    run_batch(ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab, WD, has_dist,
+              uf, share, lo, hi, sat, work)  # fmt: skip
+    done_loop(ix, uo, ST, u_prev, k, moved, terminated, truncated, done, dc)
+
+
+#: the name of the runner's end of a control step in :data:`_jit.TWINS` (supervision,
+#: record, plant step, end-of-episode checks in one call)
+STEP_END = "simulation.batch_step_end"
+_jit.register(
+    STEP_END,
+    step_end_arrays,
+    source=step_end_loop,
+    helpers={
+        "supervise_loop": supervise_loop,
+        "done_loop": done_loop,
+        "run_batch": run_batch,
+        **CAR_STEP_HELPERS,
+    },
+)
+
+
 class BatchController(Protocol):
     """What :class:`BatchLoop` needs of a batched controller."""
 
@@ -218,8 +316,7 @@ class BatchLoop:
             [1.0 if has_stop else 0.0, sc.s_stop_m + sc.overrun_m if has_stop else 0.0,
              sc.t_max_s - 1e-9, float(self.n_max - 1)]
         )  # fmt: skip
-        self._supervise = _jit.implementation(SUPERVISE)
-        self._done = _jit.implementation(DONE)
+        self._end = _jit.implementation(STEP_END)
         self._grad = gradient_table(sc.track)
         # one (steps, columns, members) table: the runner's columns, then INFO_COLUMNS
         self._table = np.full((self.n_max, len(_COLUMNS) + len(INFO_COLUMNS), B), np.nan)
@@ -267,7 +364,7 @@ class BatchLoop:
         p, sc = self.plant, self.scenario
         full = ix.size == self.B
         sel = slice(None) if full else ix  # (the members' own rows, without a gather)
-        t = t_all = p.t[ix]
+        t = p.t[ix]
         s, v = p.s[ix], p.v[ix]
         a_all, g_all = p.accel_gradient()
         a = a_all[sel]
@@ -278,58 +375,31 @@ class BatchLoop:
         u = np.asarray(u, dtype=float)
         if not np.isfinite(u).all():
             raise ValueError(f"batched controller returned a non-finite command {u}")
-        n = ix.size
-        limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
-        brake = np.empty(n, dtype=bool)
-        pos, val = self._limit_table
-        self._supervise(ix, s, v, pos, val, self._braking, self.atp_interventions, self._sp,
-                        limit, brake, over, overrun)  # fmt: skip
-        if brake.any():
-            lo, _ = sc.train.envelope_N(v)
-            u = np.where(brake, lo, u)
-        k = self.k[ix]
         v_ref, s_ref = self._reference(t, s)
-        row = [
-            t_all,
-            s,
-            v,
-            a,
-            v_ref,
-            s_ref,
-            limit,
-            grad,
-            u,
-            u_N,
-            p.work_traction_J[sel],
-            p.work_brake_J[sel],
-            p.saturated[sel],
-            brake,
-            over,
-            overrun,
-        ]  # in the order of _COLUMNS
-        keys, cols = self._columns(tuple(info))
-        if keys:
-            row += [info[key] for key in keys]
-        vals = np.array(row, dtype=float)
-        k0 = int(k[0])
-        if full and (k == k0).all():  # the whole population at one step
-            self._table[k0, cols] = vals
-        elif (k == k0).all():
-            self._table[k0][np.ix_(cols, ix)] = vals
-        else:
-            self._table[k[None, :], cols[:, None], ix[None, :]] = vals
+        keys, icols = self._columns(tuple(info))
+        n = ix.size
+        info_rows = np.array([info[key] for key in keys], dtype=float) if keys else np.empty((0, n))
         if "fallback" in info:  # what an env step reports of the last control step
             for j, key in enumerate(("fallback", "slack_max", "iterations")):
                 if key in info:
                     self._last[sel, j] = info[key]
-        p.step(u if full else np.where(act, self._scatter(u, ix), 0.0), self.dt, act)
-        self._done(ix, u, p.ST, self.u_prev, self.k, self._moved, self.terminated,
-                   self.truncated, self.done, self._dc)  # fmt: skip
+        head, tail = p.step_args(self.dt, act)
+        # the ATP's brake: the scenario's train's lower bound (the plant's reading where
+        # every member runs on that train)
+        if p.single_train() is sc.train:
+            lo_brake = tail[1]
+        else:
+            lo_brake = sc.train.envelope_N(p.ST[:, ST_Z1])[0]
+        pos, val = self._limit_table
+        self._end(ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, self._table, self.k,
+                  pos, val, self._braking, self.atp_interventions, self._sp, lo_brake, *head,
+                  *tail, self.u_prev, self._moved, self.terminated, self.truncated,
+                  self.done, self._dc)  # fmt: skip
         return act
 
     def _columns(self, given: tuple[str, ...]) -> tuple[list[str], np.ndarray]:
-        """(the info keys recorded, in INFO_COLUMNS order; the table columns of a row)
-        for the info keys ``given`` by the controller (once per set of keys)."""
+        """(the info keys recorded, in INFO_COLUMNS order; their table columns) for the
+        info keys ``given`` by the controller (once per set of keys)."""
         out = self._cols.get(given)
         if out is None:
             keys = [key for key in INFO_COLUMNS if key in given]
@@ -338,9 +408,7 @@ class BatchLoop:
                     self._info = {
                         c: self._info_all[c] for c in INFO_COLUMNS if c in self._info or c == key
                     }
-            cols = np.arange(len(_COLUMNS))
-            if keys:
-                cols = np.concatenate([cols, [self._info_index[key] for key in keys]])
+            cols = np.array([self._info_index[key] for key in keys], dtype=np.int64)
             out = self._cols[given] = (keys, cols)
         return out
 
