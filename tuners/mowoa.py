@@ -49,8 +49,12 @@ cosine similarity of the subproblem weights to the target (:func:`select_by_cosi
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 from collections.abc import Sequence
 from functools import lru_cache
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -96,17 +100,63 @@ def _weight_vectors_cached(n_obj: int, n: int, seed: int) -> tuple[tuple[float, 
         if math.comb(h + n_obj - 1, n_obj - 1) == n:
             w = get_reference_directions("das-dennis", n_obj, n_partitions=h)
         else:
-            w = get_reference_directions("energy", n_obj, n, seed=seed)
+            path = _energy_cache_path(n_obj, n, seed)
+            w = _load_directions(path, (n, n_obj))
+            if w is None:
+                w = get_reference_directions("energy", n_obj, n, seed=seed)
+                _store_directions(path, np.asarray(w, float))
     w = np.maximum(np.asarray(w, float), WEIGHT_FLOOR)
     w = w / w.sum(axis=1, keepdims=True)
     return tuple(tuple(float(v) for v in row) for row in w)
+
+
+def _energy_cache_path(n_obj: int, n: int, seed: int) -> Path:
+    """Where the Riesz s-energy directions of ``(n_obj, n, seed)`` are kept between
+    processes: ``$TRAIN_ENVS_CACHE_DIR`` (default ``$XDG_CACHE_HOME/train-envs``, else
+    ``~/.cache/train-envs``), one ``.npy`` file per pymoo version (the directions are
+    pymoo's deterministic output for the seed; computing them takes seconds)."""
+    root = os.environ.get("TRAIN_ENVS_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "train-envs"
+    )
+    try:
+        tag = version("pymoo")
+    except PackageNotFoundError:  # pragma: no cover - pymoo is a dependency
+        tag = "unknown"
+    return Path(root) / "weight_vectors" / f"energy-{n_obj}-{n}-s{seed}-pymoo{tag}.npy"
+
+
+def _load_directions(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
+    """The directions stored at ``path`` (a plain ``.npy`` array, read without
+    pickle), or None where the file is missing, unreadable or not ``shape`` rows of
+    finite non-negative numbers."""
+    try:
+        w = np.load(path, allow_pickle=False)
+    except (OSError, ValueError):
+        return None
+    if w.shape != shape or w.dtype != np.float64 or not np.isfinite(w).all() or (w < 0).any():
+        return None
+    return w
+
+
+def _store_directions(path: Path, w: np.ndarray) -> None:
+    """Write ``w`` to ``path`` atomically (a temporary file renamed); nothing where the
+    directory cannot be written."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npy")
+        with os.fdopen(fd, "wb") as fh:
+            np.save(fh, w, allow_pickle=False)
+        os.replace(tmp, path)
+    except OSError:
+        pass
 
 
 def weight_vectors(n_obj: int, n: int, seed: int = 1) -> np.ndarray:
     """``n`` weight vectors on the unit simplex (rows sum to 1, components ≥ 1e-6).
 
     Two objectives: evenly spaced; more: Das–Dennis if ``n`` is a simplex-lattice size,
-    else Riesz s-energy directions (pymoo, deterministic for a given ``seed``).
+    else Riesz s-energy directions (pymoo, deterministic for a given ``seed``; kept on
+    disk between processes, :func:`_energy_cache_path`).
     """
     if n < 1 or n_obj < 1:
         raise ValueError(f"need n >= 1 and n_obj >= 1, got n={n}, n_obj={n_obj}")

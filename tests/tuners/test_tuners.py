@@ -165,6 +165,30 @@ def test_mowoa_matches_nsga2_on_zdt(name):
     assert m[1] <= n[1] + 0.05, (name, m, n)
 
 
+def test_energy_weight_vectors_are_kept_on_disk_and_a_bad_file_is_recomputed(tmp_path, monkeypatch):
+    from pymoo.util.ref_dirs import get_reference_directions
+
+    from tuners import mowoa
+
+    monkeypatch.setenv("TRAIN_ENVS_CACHE_DIR", str(tmp_path))
+    n_obj, n, seed = 3, 7, 4  # not a simplex-lattice size: Riesz s-energy directions
+    expected = mowoa._weight_vectors_cached.__wrapped__(n_obj, n, seed)
+    path = mowoa._energy_cache_path(n_obj, n, seed)
+    assert path.is_relative_to(tmp_path) and path.exists()
+    stored = np.load(path, allow_pickle=False)
+    assert np.array_equal(stored, get_reference_directions("energy", n_obj, n, seed=seed))
+    # a second process reads the file: the same vectors, bit for bit
+    assert mowoa._weight_vectors_cached.__wrapped__(n_obj, n, seed) == expected
+    # a file of the wrong shape, or one that is not a plain array, is computed again
+    for bad in (np.zeros((2, 3)), None):
+        if bad is None:
+            path.write_bytes(b"not an npy file")
+        else:
+            np.save(path, bad)
+        assert mowoa._weight_vectors_cached.__wrapped__(n_obj, n, seed) == expected
+        assert np.array_equal(np.load(path, allow_pickle=False), stored)
+
+
 def test_pso_and_mowoa_converge_on_sphere():
     """10-D sphere centred at 0.3, 40 × 100: PSO ≤ 1e-4 and ≤ NSGA-II; MOWOA (one
     objective = plain WOA) within 1e-3 of NSGA-II."""
