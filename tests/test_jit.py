@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from train_envs import _jit
+from train_envs._jit import dgemv_at
 
 
 def _source_function(src: str, name: str):
@@ -71,6 +72,27 @@ def test_a_twin_that_is_not_available_gives_the_reference():
     with pytest.raises(RuntimeError, match="unavailable"):
         _jit.implementation("test.double", compiled_twin=True)
     del _jit.TWINS["test.double"]
+
+
+def test_dgemv_at_an_address_sums_as_ndarray_dot():
+    addr = _jit.numpy_dgemv_address()
+    if not _jit.enabled() or addr == 0:
+        pytest.skip("numba or numpy's OpenBLAS not available")
+
+    def rows(g, A, X, out, m):
+        for r in range(X.shape[0]):
+            dgemv_at(g, m, A.shape[1], A, X[r], out[r])
+
+    fast = _jit.compiled(rows, {"dgemv_at": _jit.DGEMV})
+    rows(addr, *(np.eye(2),) * 3, 2)  # (the Python meaning runs too)
+    rng = np.random.default_rng(1)
+    for m in (15, 9):  # all rows, the first rows (as the DMC's prediction)
+        A = rng.standard_normal((15, 12)) * rng.uniform(0.1, 10.0)
+        X = rng.standard_normal((8, 12)) * rng.uniform(1e-3, 1e2)
+        out = np.full((8, 15), np.nan)
+        fast(addr, A, X, out, m)
+        assert np.array_equal(out[:, :m], np.array([A[:m].dot(x) for x in X]))
+        assert np.isnan(out[:, m:]).all()
 
 
 def test_numpy_dgemv_in_compiled_code_sums_as_ndarray_dot():

@@ -21,6 +21,7 @@ clean`` does) or the kernels keep the old helper.
 
 from __future__ import annotations
 
+import functools
 import os
 import types
 from collections.abc import Callable, Mapping
@@ -60,10 +61,14 @@ def compiled(
 
             glb: dict[str, Any] = {}
             for helper in (helpers or {}).values():
-                glb.update(helper.__globals__)
+                if not isinstance(helper, Intrinsic):
+                    glb.update(helper.__globals__)
             glb.update(func.__globals__)
             for name, helper in (helpers or {}).items():
-                glb[name] = _njit(numba, _rebind(helper, glb))
+                if isinstance(helper, Intrinsic):
+                    glb[name] = helper.build()
+                else:
+                    glb[name] = _njit(numba, _rebind(helper, glb))
             _CACHE[func] = _njit(numba, _rebind(func, glb))
         else:
             _CACHE[func] = None
@@ -132,6 +137,78 @@ def numpy_dgemv() -> Any:
             fn.restype = None
         _DGEMV.append(fn)
     return _DGEMV[0]
+
+
+def numpy_dgemv_address() -> int:
+    """The address of :func:`numpy_dgemv` (0 where it is not found): what compiled
+    loops pass to :data:`DGEMV` (an integer argument costs the dispatcher nothing; a
+    ctypes function is converted at every call)."""
+    fn = numpy_dgemv()
+    if fn is None:
+        return 0
+    import ctypes
+
+    return int(ctypes.cast(fn, ctypes.c_void_p).value)
+
+
+@dataclass(frozen=True)
+class Intrinsic:
+    """A helper of compiled code that is not a Python function: ``build()`` returns
+    the numba object bound under its name (numba is imported only then)."""
+
+    build: Callable[[], Any]
+
+
+@functools.cache
+def _dgemv_at() -> Any:
+    """``dgemv_at(addr, m, n, A, x, y)``: ``y[:m] = A[:m] x`` for a C-contiguous ``A``
+    with ``n`` columns, by a call of the ``cblas_dgemv`` at ``addr``
+    (:func:`numpy_dgemv_address`): ``dgemv(102, 112, n, m, 1.0, A, n, x, 1, 0.0, y,
+    1)``, the call of :func:`numpy_dgemv`'s docstring."""
+    from llvmlite import ir
+    from numba.core import types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def dgemv_at(typingctx, addr, m, n, A, x, y):
+        sig = types.void(addr, m, n, A, x, y)
+
+        def codegen(context, builder, signature, args):
+            i32, i64, dbl = ir.IntType(32), ir.IntType(64), ir.DoubleType()
+            dp = dbl.as_pointer()
+            fnty = ir.FunctionType(
+                ir.VoidType(), [i32, i32, i64, i64, dbl, dp, i64, dp, i64, dbl, dp, i64]
+            )
+            ty = signature.args
+            addr_v, m_v, n_v = (
+                context.cast(builder, args[i], ty[i], types.int64) for i in range(3)
+            )
+            A_d, x_d, y_d = (
+                context.make_array(ty[i])(context, builder, args[i]).data for i in (3, 4, 5)
+            )
+            fn = builder.inttoptr(addr_v, fnty.as_pointer())
+            one, zero = ir.Constant(dbl, 1.0), ir.Constant(dbl, 0.0)
+            inc = ir.Constant(i64, 1)
+            builder.call(
+                fn,
+                [ir.Constant(i32, 102), ir.Constant(i32, 112), n_v, m_v, one, A_d, n_v, x_d,
+                 inc, zero, y_d, inc],
+            )  # fmt: skip
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return dgemv_at
+
+
+def dgemv_at(addr: int, m: int, n: int, A: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
+    """``y[:m] = A[:m] x`` (``A`` with ``n`` columns): the Python meaning of the helper
+    :data:`DGEMV` that compiled loops call by this name (``addr`` unused here)."""
+    y[:m] = A[:m, :n].dot(x[:n])
+
+
+#: the helper ``dgemv_at`` of compiled loops: the intrinsic of :func:`_dgemv_at`
+DGEMV = Intrinsic(_dgemv_at)
 
 
 # ------------------------------------------------------------------ the table of twins

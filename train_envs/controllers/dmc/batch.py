@@ -79,7 +79,7 @@ class BatchDMC:
         self._predict = _jit.implementation(PREDICT, compiled_twin=compiled_twin)
         self._plan = _jit.implementation(PLAN, compiled_twin=compiled_twin)
         self._command = _jit.implementation(COMMAND, compiled_twin=compiled_twin)
-        self._gemv = _jit.numpy_dgemv()
+        self._gemv = _jit.numpy_dgemv_address()
         self.reset()
 
     def _constants(self) -> None:

@@ -17,7 +17,8 @@ signature and the single controller's IEEE operations in the same order:
 * :data:`COMMAND`: ``u = M u_a + u_ff``, the jerk limit, the envelope, the rate limit.
 
 The matrix-vector products of the loops call numpy's own ``cblas_dgemv``
-(:func:`train_envs._jit.numpy_dgemv`): the sums of ``ndarray.dot``, bit for bit. The
+(:func:`train_envs._jit.numpy_dgemv`, at the address ``gemv`` through the helper
+:data:`train_envs._jit.DGEMV`): the sums of ``ndarray.dot``, bit for bit. The
 envelope's bounds come in as arrays, from :meth:`~train_envs.effort.ForceEnvelope.bounds`
 (the one envelope) evaluated by the caller between the stages; the reference's rule
 base is :func:`~train_envs.controllers.batch.locate_uniform` and
@@ -31,6 +32,7 @@ import math
 import numpy as np
 
 from train_envs import _jit
+from train_envs._jit import dgemv_at
 from train_envs.controllers.batch import davis_array, locate_uniform, rule_cell
 from train_envs.controllers.fuzzy import trapmf
 from train_envs.lines.track import equivalent_gradient_1, equivalent_gradient_arrays
@@ -321,7 +323,7 @@ def predict_loop(
         for k in range(N):
             yN0_s[b, k] = out[k]
         started[b] = True
-        gemv(102, 112, L, Pm, 1.0, A_dyn.ctypes, L, dU_shift[b].ctypes, 1, 0.0, tmp.ctypes, 1)
+        dgemv_at(gemv, Pm, L, A_dyn, dU_shift[b], tmp)
         v_plan_o[r, 0] = yv if yv > 0.0 else 0.0
         for k in range(P):
             yP0_o[r, k] = out[k]
@@ -383,7 +385,7 @@ def plan_loop(
                 wk = y_r[r, k] - ak * (y0_ref[r] - yv)
             w_o[r, k] = wk
             dv[k] = wk - yP0[r, k]
-        gemv(102, 112, P, L, 1.0, K.ctypes, P, dv.ctypes, 1, 0.0, dU.ctypes, 1)
+        dgemv_at(gemv, L, P, K, dv, dU)
         acc = dU[0]
         mx = dU[0]
         mn = dU[0]
@@ -436,7 +438,7 @@ def command_loop(ix, u_a, ff, lo, hi, u_prev_N, cc, ff_prev, u_o) -> None:
 
 
 def _has_dgemv() -> bool:
-    return _jit.numpy_dgemv() is not None
+    return _jit.numpy_dgemv_address() != 0
 
 
 _jit.register(
@@ -449,8 +451,10 @@ _jit.register(
     PREDICT,
     predict_ref,
     source=predict_loop,
-    helpers={"_locate1": _locate1, "_trap": _trap, "np_sum": np_sum},
+    helpers={"_locate1": _locate1, "_trap": _trap, "np_sum": np_sum, "dgemv_at": _jit.DGEMV},
     available=_has_dgemv,
 )
-_jit.register(PLAN, plan_ref, source=plan_loop, available=_has_dgemv)
+_jit.register(
+    PLAN, plan_ref, source=plan_loop, helpers={"dgemv_at": _jit.DGEMV}, available=_has_dgemv
+)
 _jit.register(COMMAND, command_ref, source=command_loop)
