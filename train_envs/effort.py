@@ -305,11 +305,23 @@ class ForceEnvelope:
             lo, hi = self.bounds(av.reshape(1))
             return lo[0], hi[0] if self._t[3] is not None else hi.reshape(())
         flat = av.reshape(-1)
-        T, E = self._t[1], self._b[1]
-        tv = _NONE if T is None else np.asarray(T(flat), dtype=float)
-        ev = _NONE if E is None else np.asarray(E(flat), dtype=float)
-        lo, hi = _bounds_impl()(flat, tv, ev, self._k)
+        lo, hi = _bounds_impl()(flat, *self.table_forces(flat), self._k)
         return lo.reshape(av.shape), hi.reshape(av.shape)
+
+    def table_forces(self, av: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The effort tables' forces ``(T(av), E(av))`` at the speeds ``av ≥ 0`` (1-D), an
+        empty array for a term without a table: what :func:`bounds_arrays` and its
+        compiled twin take with :attr:`constants`."""
+        T, E = self._t[1], self._b[1]
+        tv = _NONE if T is None else np.asarray(T(av), dtype=float)
+        ev = _NONE if E is None else np.asarray(E(av), dtype=float)
+        return tv, ev
+
+    @property
+    def constants(self) -> np.ndarray:
+        """The envelope's ``(F_t, P_t, M'a_max, a, b, c, F_b, P_b, F_fric, M'd_max)`` as
+        :func:`bounds_arrays` takes them (NaN where a term is absent)."""
+        return self._k
 
     def bounds_lists(self, speeds: Sequence[float]) -> tuple[list[float], list[float]]:
         """:meth:`bounds` for a short sequence of finite speeds, as Python lists (the
@@ -435,9 +447,11 @@ def bounds_loop(
 
 #: the name of the envelope's array form in :data:`train_envs._jit.TWINS`
 BOUNDS = "effort.bounds"
+#: the functions :func:`bounds_loop` calls, by name (for the compiled loops that call it)
+BOUNDS_HELPERS = {"_np_min": _np_min, "davis_sq_N": davis_sq_N}
 _jit.register(
     BOUNDS, bounds_arrays, source=bounds_loop,
-    helpers={"_np_min": _np_min, "davis_sq_N": davis_sq_N},
+    helpers=BOUNDS_HELPERS,
 )  # fmt: skip
 
 
@@ -446,4 +460,13 @@ def _bounds_impl() -> Any:
     return _jit.implementation(BOUNDS)
 
 
-__all__ = ["BOUNDS", "FORCE_UNITS", "SPEED_UNITS", "EffortCurve", "ForceEnvelope", "bounds_arrays"]
+__all__ = [
+    "BOUNDS",
+    "BOUNDS_HELPERS",
+    "FORCE_UNITS",
+    "SPEED_UNITS",
+    "EffortCurve",
+    "ForceEnvelope",
+    "bounds_arrays",
+    "bounds_loop",
+]

@@ -1,12 +1,15 @@
 """The lockstep path equals the single-member path member by member, bit for bit.
 
 Batched plant (paper 001 with dead time and disturbances, 004, Yizhuang), batched
-controllers (PID on 001, DMC and Fuzzy-PID on 004, DMC on Yizhuang) in the batched
-runner against :class:`ClosedLoop`, and :func:`evaluate_env_params_batch` against
-:func:`evaluate_env_params` on the env ids. Horizons are short (a step cap).
+controllers (PID on 001, DMC and Fuzzy-PID on 004, DMC on 004 with effort tables, DMC on
+Yizhuang) in the batched runner against :class:`ClosedLoop`, and
+:func:`evaluate_env_params_batch` against :func:`evaluate_env_params` on the env ids.
+Horizons are short (a step cap).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -17,6 +20,7 @@ from train_envs import _jit
 from train_envs.controllers import make_controller
 from train_envs.controllers.batch import BatchFuzzyPID, BatchPID
 from train_envs.controllers.dmc.batch import BatchDMC
+from train_envs.effort import EffortCurve
 from train_envs.envs.batch import evaluate_env_params_batch, supports_batch
 from train_envs.envs.evaluation import evaluate_env_params
 from train_envs.plants.batch import BATCH_ACCEL, BATCH_CAR_STEP, BatchSingleCar
@@ -25,6 +29,20 @@ from train_envs.simulation import ClosedLoop, run_to_end
 from train_envs.simulation.batch import STEP_END, SUPERVISE, BatchLoop
 
 STEPS = 150  # control steps of the closed-loop comparisons
+
+
+def _tabulated_004():
+    """Paper 004's run on a train with traction and braking effort tables (the
+    envelope's table terms in the batched law and the plant)."""
+    sc = get_scenario("paper004_urban")
+    traction = EffortCurve.from_pairs([(0.0, 240.0), (40.0, 230.0), (60.0, 170.0), (90.0, 110.0)])
+    brake = EffortCurve.from_pairs([(0.0, 150.0), (20.0, 235.0), (70.0, 200.0), (90.0, 120.0)])
+    train = dataclasses.replace(sc.train, traction_curve=traction, brake_curve=brake)
+    return sc.with_overrides(train=train)
+
+
+def _scenario(name):
+    return _tabulated_004() if name == "paper004_tabulated" else get_scenario(name)
 
 
 def _disturbed_001():
@@ -97,6 +115,7 @@ CASES = [
         [{}, {"k_e": 300.0, "k_h": 0.3, "alpha_trend": -5.0}, {"alpha_max": 0.0, "h0": 0.1}],
     ),
     ("dmc", "yizhuang", [{}, {"alpha_min": 0.9, "alpha_max": 0.95, "k_ec": 500.0}]),
+    ("dmc", "paper004_tabulated", [{}, {"k_e": 300.0, "alpha_min": 0.6}]),
 ]
 
 
@@ -105,7 +124,7 @@ CASES = [
 def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list, compiled):
     if compiled and not _jit.enabled():
         pytest.skip("numba disabled")
-    sc = get_scenario(scenario)
+    sc = _scenario(scenario)
     kw = {"alpha_order": "clip"} if ctrl_name == "dmc" else {}
     seeds = [0, 5, 0, 5][: len(params_list)]
     singles = [

@@ -27,6 +27,7 @@ __all__ = [
     "BatchFuzzyPID",
     "BatchPID",
     "clip_like",
+    "common_time",
     "davis_array",
     "per_time",
     "resistance_array",
@@ -53,11 +54,20 @@ def davis_array(a: float, b: float, c: float, v: np.ndarray) -> np.ndarray:
     return np.where(v != 0, np.copysign(r, v), 0.0)
 
 
+def common_time(t: np.ndarray) -> float | None:
+    """The members' one time where they are in lockstep (every ``t_i`` equal), else
+    None (a list comparison: for the few members of a population cheaper than an
+    array reduction)."""
+    tl = t.tolist()
+    t0 = tl[0]
+    return t0 if tl.count(t0) == len(tl) else None
+
+
 def per_time(t: np.ndarray, fn: Any) -> np.ndarray:
     """``fn(t_i)`` for every member's time ``t_i`` (members in lockstep share one time,
     evaluated once): an array of ``fn``'s values, one row per member."""
-    t0 = t.item(0)
-    if (t == t0).all():  # in lockstep: one evaluation, repeated
+    t0 = common_time(t)
+    if t0 is not None:  # in lockstep: one evaluation, repeated
         return np.asarray(fn(t0), dtype=float)[None].repeat(t.shape[0], axis=0)
     ut, inv = np.unique(t, return_inverse=True)
     vals = np.array([fn(float(x)) for x in ut.tolist()], dtype=float)

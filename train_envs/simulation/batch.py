@@ -25,7 +25,7 @@ from typing import Protocol
 import numpy as np
 
 from train_envs import _jit
-from train_envs.controllers.batch import per_time
+from train_envs.controllers.batch import common_time, per_time
 from train_envs.lines.track import section_index
 from train_envs.plants.batch import (
     CAR_STEP_HELPERS,
@@ -164,9 +164,10 @@ def step_end_arrays(
     interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs,
     has_tab, WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated,
     done, dc,
-) -> None:  # fmt: skip
+) -> bool:  # fmt: skip
     """The runner's end of one control step of the members ``ix`` with the controller's
-    commands ``u``, numpy form (the reference of :data:`STEP_END`): the ATP and the
+    commands ``u``, numpy form (the reference of :data:`STEP_END`); False, changing
+    nothing, where a command is not finite. Else: the ATP and the
     limit columns (:func:`supervise_arrays`; a braking member's command replaced by
     ``lo_brake[b]``, the lower envelope bound of the scenario's train at its speed),
     the record row of each member (the columns of ``_COLUMNS`` from ``t … u_N``, the
@@ -176,6 +177,8 @@ def step_end_arrays(
     (:func:`~train_envs.plants.batch.batch_car_step`, arguments ``ST … has_dist`` and
     ``share … work`` of :meth:`~train_envs.plants.batch.BatchSingleCar.step_args`,
     inactive members' commands 0) and the end-of-step checks (:func:`done_arrays`)."""
+    if not np.isfinite(u).all():
+        return False
     n = ix.shape[0]
     limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
     brake = np.empty(n, dtype=bool)
@@ -191,6 +194,7 @@ def step_end_arrays(
     batch_car_step(ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab, WD,
                    has_dist, uf, share, lo, hi, sat, work)  # fmt: skip
     done_arrays(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc)
+    return True
 
 
 def step_end_loop(
@@ -198,9 +202,12 @@ def step_end_loop(
     interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs,
     has_tab, WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated,
     done, dc,
-) -> None:  # fmt: skip
+) -> bool:  # fmt: skip
     """:func:`step_end_arrays` member by member (the source of its compiled twin)."""
     n = ix.shape[0]
+    for r in range(n):
+        if not math.isfinite(u[r]):
+            return False
     limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
     brake = np.empty(n, dtype=np.bool_)
     supervise_loop(ix, s, v, pos, val, braking, interventions, sp, limit, brake, over, overrun)
@@ -234,6 +241,7 @@ def step_end_loop(
     run_batch(ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab, WD, has_dist,
               uf, share, lo, hi, sat, work)  # fmt: skip
     done_loop(ix, uo, ST, u_prev, k, moved, terminated, truncated, done, dc)
+    return True
 
 
 #: the name of the runner's end of a control step in :data:`_jit.TWINS` (supervision,
@@ -373,16 +381,10 @@ class BatchLoop:
         u_N = p.force[ix]
         u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix])
         u = np.asarray(u, dtype=float)
-        if not np.isfinite(u).all():
-            raise ValueError(f"batched controller returned a non-finite command {u}")
         v_ref, s_ref = self._reference(t, s)
         keys, icols = self._columns(tuple(info))
         n = ix.size
         info_rows = np.array([info[key] for key in keys], dtype=float) if keys else np.empty((0, n))
-        if "fallback" in info:  # what an env step reports of the last control step
-            for j, key in enumerate(("fallback", "slack_max", "iterations")):
-                if key in info:
-                    self._last[sel, j] = info[key]
         head, tail = p.step_args(self.dt, act)
         # the ATP's brake: the scenario's train's lower bound (the plant's reading where
         # every member runs on that train)
@@ -391,10 +393,15 @@ class BatchLoop:
         else:
             lo_brake = sc.train.envelope_N(p.ST[:, ST_Z1])[0]
         pos, val = self._limit_table
-        self._end(ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, self._table, self.k,
-                  pos, val, self._braking, self.atp_interventions, self._sp, lo_brake, *head,
-                  *tail, self.u_prev, self._moved, self.terminated, self.truncated,
-                  self.done, self._dc)  # fmt: skip
+        if not self._end(ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols,
+                         self._table, self.k, pos, val, self._braking, self.atp_interventions,
+                         self._sp, lo_brake, *head, *tail, self.u_prev, self._moved,
+                         self.terminated, self.truncated, self.done, self._dc):  # fmt: skip
+            raise ValueError(f"batched controller returned a non-finite command {u}")
+        if "fallback" in info:  # what an env step reports of the last control step
+            for j, key in enumerate(("fallback", "slack_max", "iterations")):
+                if key in info:
+                    self._last[sel, j] = info[key]
         return act
 
     def _columns(self, given: tuple[str, ...]) -> tuple[list[str], np.ndarray]:
@@ -433,8 +440,8 @@ class BatchLoop:
         ref = self.scenario.reference
         if ref.mode == "distance":
             return np.array([ref.v_ref(0.0, x) for x in s.tolist()]), per_time(t, ref.s_ref)
-        t0 = t.item(0)
-        if (t == t0).all():  # in lockstep
+        t0 = common_time(t)
+        if t0 is not None:  # in lockstep
             n = t.shape[0]
             v0, s0 = ref.at_time(t0)
             return np.full(n, v0), np.full(n, s0)

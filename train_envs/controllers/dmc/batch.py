@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from train_envs import _jit
-from train_envs.controllers.batch import rules_batchable
+from train_envs.controllers.batch import common_time, rules_batchable
 from train_envs.controllers.dmc.batch_law import COMMAND, FRONT, PLAN, PREDICT
 from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.dmc.qp import UNCONSTRAINED_INFO
@@ -170,8 +170,8 @@ class BatchDMC:
         :meth:`SetpointPreview.time_row` at the members' distinct times ``t`` (one in
         lockstep) and each member's row."""
         sp = self.ref._setpoint
-        t0 = t.item(0)
-        if (t == t0).all():  # in lockstep
+        t0 = common_time(t)
+        if t0 is not None:  # in lockstep
             v, s_ref, fade, held = sp.time_row(t0)
             F = fade[None] if fade is not None else self._no_fade
             return self._row0[: t.shape[0]], v[None], np.array([s_ref]), F, held[None]
@@ -196,15 +196,14 @@ class BatchDMC:
         ref = self.ref
         P = ref.P
         y = v
-        if not (np.isfinite(y).all() and np.isfinite(s).all()):
-            raise ValueError("measured speed v_mps / position s_m must be finite")
         n = len(ix)
         vec = np.empty((7, n))  # one block for the per-member outputs of the stages
         y0_ref, ff, u_prev, h_c, J, alpha, u_a = vec
-        mat = np.empty((7, n, P))
-        y_r, yP0, y_pred, v_plan, w, lo_a, hi_a = mat
-        self._front(s, y, *self._time_rows(t), self._spc, self._ffc, *self._track,
-                    y0_ref, y_r, ff)  # fmt: skip
+        mat = np.empty((9, n, P))
+        y_r, yP0, y_pred, v_plan, w, lo_a, hi_a, lo, hi = mat
+        if not self._front(s, y, *self._time_rows(t), self._spc, self._ffc, *self._track,
+                           y0_ref, y_r, ff):  # fmt: skip
+            raise ValueError("measured speed v_mps / position s_m must be finite")
         self._predict(
             ix, y, y0_ref, y_r, ff, u_prev_N, self.started, self.e_prev, self.edot,
             self.u_prev2, self.ff_prev, self.yN0, self.dU_shift, self.par, self._a,
@@ -214,14 +213,15 @@ class BatchDMC:
         ai = alpha[:, None] ** self._steps  # numpy's power, as the single law
         ok = np.empty(n, dtype=bool)
         # the envelope at the plan's speeds (the measured one, then the predictions)
-        lo, hi = self._envelope.bounds(v_plan)
-        self._plan(
-            ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, self._K, lo, hi, self._cp,
-            self.dU_shift, self._dU_last, self._lev_last, self._pending, self._gemv,
-            w, lo_a, hi_a, ok, u_a,
+        env = self._envelope
+        tv, ev = env.table_forces(v_plan.reshape(-1))
+        fails = self._plan(
+            ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, self._K, v_plan, tv, ev, env.constants,
+            self._cp, self.dU_shift, self._dU_last, self._lev_last, self._pending, self._gemv,
+            lo, hi, w, lo_a, hi_a, ok, u_a,
         )  # fmt: skip
         info = self._info0[:n].copy()
-        if not ok.all():
+        if fails:
             for r in np.flatnonzero(~ok).tolist():  # the QP, member by member
                 b = int(ix[r])
                 u_a[r], info[r], self.dU_shift[b, :-1] = self._qp_step(

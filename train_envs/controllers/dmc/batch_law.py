@@ -11,16 +11,18 @@ signature and the single controller's IEEE operations in the same order:
 * :data:`PREDICT`: error and filtered rate, h_c (rule base), the prediction vector
   moved, corrected and shifted, ``ŷ = ŷ_P0 + A [ΔU*(k−1)_{2…L}, 0]``, the satisfaction
   J (mean by numpy's pairwise sum) and the softening factor α;
-* :data:`PLAN`: the softened reference w (from the weights α^i, which numpy's ``power``
-  gives outside: its SIMD routine is not the C library's), the classic plan
-  ``ΔU = K (w − ŷ_P0)``, its levels and whether it keeps the rate box and the envelope;
+* :data:`PLAN`: the envelope's bounds at the plan's speeds
+  (:func:`~train_envs.effort.bounds_loop`), the softened reference w (from the weights
+  α^i, which numpy's ``power`` gives outside: its SIMD routine is not the C library's),
+  the classic plan ``ΔU = K (w − ŷ_P0)``, its levels and whether it keeps the rate box
+  and the envelope;
 * :data:`COMMAND`: ``u = M u_a + u_ff``, the jerk limit, the envelope, the rate limit.
 
 The matrix-vector products of the loops call numpy's own ``cblas_dgemv``
 (:func:`train_envs._jit.numpy_dgemv`, at the address ``gemv`` through the helper
 :data:`train_envs._jit.DGEMV`): the sums of ``ndarray.dot``, bit for bit. The
-envelope's bounds come in as arrays, from :meth:`~train_envs.effort.ForceEnvelope.bounds`
-(the one envelope) evaluated by the caller between the stages; the reference's rule
+envelope's bounds are the one envelope's (:meth:`~train_envs.effort.ForceEnvelope.bounds`
+and its twin; the caller passes the effort tables' forces); the reference's rule
 base is :func:`~train_envs.controllers.batch.locate_uniform` and
 :func:`~train_envs.controllers.batch.rule_cell`.
 """
@@ -35,6 +37,7 @@ from train_envs import _jit
 from train_envs._jit import dgemv_at
 from train_envs.controllers.batch import davis_array, locate_uniform, rule_cell
 from train_envs.controllers.fuzzy import trapmf
+from train_envs.effort import BOUNDS_HELPERS, bounds_arrays, bounds_loop
 from train_envs.lines.track import equivalent_gradient_1, equivalent_gradient_arrays
 from train_envs.plants.energy import np_sum
 
@@ -48,14 +51,17 @@ COMMAND = "controllers.dmc_batch_command"
 
 def front_ref(
     s, v, ri, V, S, F, H, spc, ffc, gp, gv, cp, ce, k0, k1, y0_o, y_r_o, ff_o,
-) -> None:  # fmt: skip
+) -> bool:  # fmt: skip
     """Stage 0 at positions ``s`` and speeds ``v``: member ``r`` reads the time row
     ``ri[r]`` of ``V`` (profile speeds now and over the preview, (m, P+1)), ``S``
     (s_ref), ``F`` (the catch-up fade) and ``H`` (the stop-hold mask); ``spc`` = catch-up
     (1/0), λ_x, c_max, stop hold; ``ffc`` = feedforward (1/0), track (1/0), τ_ff, the
     Davis a, b, c, R'(v_nom), M g; ``gp … k1``: the track's section arrays
     (:meth:`~train_envs.lines.track.Track.section_arrays`). Outputs y_r(k), the
-    preview and u_ff."""
+    preview and u_ff; returns False, writing nothing, where a position or a speed is
+    not finite."""
+    if not (np.isfinite(v).all() and np.isfinite(s).all()):
+        return False
     catchup, gain, c_max, hold = spc.tolist()
     y_all = V[ri]
     if catchup:
@@ -71,12 +77,13 @@ def front_ref(
     feed, track, lead, da, db, dc, kd, mG = ffc.tolist()
     if not feed:
         ff_o[:] = 0.0
-        return
+        return True
     s_ff = s + np.where(0.0 > v, 0.0, v) * lead
     theta = (
         equivalent_gradient_arrays(s_ff, gp, gv, cp, ce, k0, k1) if track else np.zeros(s.shape)
     )
     ff_o[:] = davis_array(da, db, dc, v) - kd * v + mG * theta / 1000.0
+    return True
 
 
 def predict_ref(
@@ -162,13 +169,20 @@ def predict_ref(
 
 
 def plan_ref(
-    ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, K, lo, hi, cp, dU_shift, dU_last, lev_last,
-    pending, gemv, w_o, lo_a_o, hi_a_o, ok_o, u_a_o,
-) -> None:  # fmt: skip
-    """Stage 2: ``lo``, ``hi`` the envelope's bounds [N] at the plan's speeds (one row
-    per member); ``cp`` = M, the rate box, level form (1/0), classic law (1/0)."""
+    ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, K, v_plan, tv, ev, Ke, cp, dU_shift, dU_last,
+    lev_last, pending, gemv, lo_o, hi_o, w_o, lo_a_o, hi_a_o, ok_o, u_a_o,
+) -> int:  # fmt: skip
+    """Stage 2: the envelope's bounds [N] at the plan's speeds ``v_plan ≥ 0`` (one row
+    per member; :func:`~train_envs.effort.bounds_arrays` with the tables' forces ``tv``,
+    ``ev`` at those speeds and the constants ``Ke``) into ``lo_o``, ``hi_o``, then the
+    plan; ``cp`` = M, the rate box, level form (1/0), classic law (1/0). Returns the
+    number of members whose plan leaves the box or the envelope (their QP is due)."""
     M, du_rows, level, classic = cp.tolist()
     P, L = y_r.shape[1], K.shape[0]
+    lo, hi = bounds_arrays(v_plan.reshape(-1), tv, ev, Ke)
+    lo, hi = lo.reshape(v_plan.shape), hi.reshape(v_plan.shape)
+    lo_o[:] = lo
+    hi_o[:] = hi
     if level:
         w = ai * y[:, None] + (1.0 - ai) * y_r
     else:
@@ -192,6 +206,7 @@ def plan_ref(
     hi_a_o[:] = hi_a
     ok_o[:] = ok
     u_a_o[:] = lev[:, 0]
+    return int(ok.shape[0] - np.count_nonzero(ok))
 
 
 def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -236,8 +251,11 @@ def _trap(x, a, b, c, d):
 
 def front_loop(
     s, v, ri, V, S, F, H, spc, ffc, gp, gv, cp, ce, k0, k1, y0_o, y_r_o, ff_o,
-) -> None:  # fmt: skip
+) -> bool:  # fmt: skip
     """:func:`front_ref` member by member (the source of its compiled twin)."""
+    for r in range(s.shape[0]):
+        if not (math.isfinite(v[r]) and math.isfinite(s[r])):
+            return False
     catchup, gain, c_max, hold = spc[0] != 0.0, spc[1], spc[2], spc[3]
     feed, track, lead = ffc[0] != 0.0, ffc[1] != 0.0, ffc[2]
     da, db, dc, kd, mG = ffc[3], ffc[4], ffc[5], ffc[6], ffc[7]
@@ -268,6 +286,7 @@ def front_loop(
         av = abs(vr)
         res = math.copysign(da + db * av + dc * av * av, vr) if vr != 0 else 0.0
         ff_o[r] = res - kd * vr + mG * theta / 1000.0
+    return True
 
 
 def predict_loop(
@@ -365,12 +384,16 @@ def predict_loop(
 
 
 def plan_loop(
-    ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, K, lo, hi, cp, dU_shift, dU_last, lev_last,
-    pending, gemv, w_o, lo_a_o, hi_a_o, ok_o, u_a_o,
-) -> None:  # fmt: skip
+    ix, y, y0_ref, y_r, ff, u_prev, yP0, ai, K, v_plan, tv, ev, Ke, cp, dU_shift, dU_last,
+    lev_last, pending, gemv, lo_o, hi_o, w_o, lo_a_o, hi_a_o, ok_o, u_a_o,
+) -> int:  # fmt: skip
     """:func:`plan_ref` member by member (the source of its compiled twin)."""
     M, du_rows = cp[0], cp[1]
     P, L = y_r.shape[1], K.shape[0]
+    lo_f, hi_f = bounds_loop(v_plan.reshape(-1), tv, ev, Ke)
+    lo = lo_f.reshape(v_plan.shape)
+    hi = hi_f.reshape(v_plan.shape)
+    fails = 0
     dv = np.empty(P)
     dU = np.empty(L)
     lev = np.empty(L)
@@ -414,6 +437,11 @@ def plan_loop(
             pending[b] = True
         ok_o[r] = ok
         u_a_o[r] = lev[0]
+        fails += 0 if ok else 1
+        for k in range(P):
+            lo_o[r, k] = lo[r, k]
+            hi_o[r, k] = hi[r, k]
+    return fails
 
 
 def command_loop(ix, u_a, ff, lo, hi, u_prev_N, cc, ff_prev, u_o) -> None:
@@ -455,6 +483,10 @@ _jit.register(
     available=_has_dgemv,
 )
 _jit.register(
-    PLAN, plan_ref, source=plan_loop, helpers={"dgemv_at": _jit.DGEMV}, available=_has_dgemv
+    PLAN,
+    plan_ref,
+    source=plan_loop,
+    helpers={"dgemv_at": _jit.DGEMV, "bounds_loop": bounds_loop, **BOUNDS_HELPERS},
+    available=_has_dgemv,
 )
 _jit.register(COMMAND, command_ref, source=command_loop)
