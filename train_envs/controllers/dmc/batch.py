@@ -80,6 +80,7 @@ class BatchDMC:
         self._plan = _jit.implementation(PLAN, compiled_twin=compiled_twin)
         self._command = _jit.implementation(COMMAND, compiled_twin=compiled_twin)
         self._gemv = _jit.numpy_dgemv_address()
+        self._work: dict[int, tuple[np.ndarray, ...]] = {}
         self.reset()
 
     def _constants(self) -> None:
@@ -193,14 +194,12 @@ class BatchDMC:
         """One control step of members ``ix`` (indices) at their times ``t`` with
         positions ``s``, speeds ``v`` and the commands applied last ``u_prev_N`` (each
         of length ``len(ix)``); returns their commands [N] and info columns."""
-        ref = self.ref
-        P = ref.P
         y = v
         n = len(ix)
         vec = np.empty((7, n))  # one block for the per-member outputs of the stages
         y0_ref, ff, u_prev, h_c, J, alpha, u_a = vec
-        mat = np.empty((9, n, P))
-        y_r, yP0, y_pred, v_plan, w, lo_a, hi_a, lo, hi = mat
+        # the stages' work rows (none of them leaves this call): one block per size
+        y_r, yP0, y_pred, v_plan, w, lo_a, hi_a, lo, hi = self._work_rows(n)
         if not self._front(s, y, *self._time_rows(t), self._spc, self._ffc, *self._track,
                            y0_ref, y_r, ff):  # fmt: skip
             raise ValueError("measured speed v_mps / position s_m must be finite")
@@ -243,6 +242,14 @@ class BatchDMC:
             "slack_max": info[:, 3],
             "status_val": info[:, 4],
         }
+
+    def _work_rows(self, n: int) -> tuple[np.ndarray, ...]:
+        """Nine (n, P) arrays for the stages' intermediate rows of ``n`` members (kept
+        per ``n``: they are overwritten every step, never returned)."""
+        rows = self._work.get(n)
+        if rows is None:
+            rows = self._work[n] = tuple(np.empty((9, n, self.ref.P)))
+        return rows
 
     def _qp_step(
         self, b: int, w: np.ndarray, yP0: np.ndarray, u_prev: float, lo: np.ndarray, hi: np.ndarray
