@@ -7,8 +7,9 @@ together (:class:`~train_envs.plants.batch.BatchSingleCar`), a batched controlle
 operations, the ATP supervises each member (:mod:`.supervision`), and the rows are
 recorded into one (steps × members) array per column. A member whose episode is over
 (the runner's termination and truncation, or the step cap) stops stepping; the others
-go on. The ATP, the limit columns and the end-of-step checks run in the registered
-twins :data:`SUPERVISE` and :data:`DONE` (numpy references, compiled member loops).
+go on. Everything after the controller (the ATP and the limit columns, :data:`SUPERVISE`;
+the record row; the plant step; the end-of-step checks, :data:`DONE`) is one call of
+the registered twin :data:`STEP_END` (numpy reference, compiled member loop).
 :meth:`BatchLoop.arrays` gives each member the columns of
 :meth:`ClosedLoop.arrays`, :meth:`BatchLoop.metrics` its
 :func:`~train_envs.metrics.episode_metrics`. The runner adds no arithmetic of its own:
@@ -45,7 +46,7 @@ from train_envs.simulation.supervision import (
     permitted_speed_table,
 )
 
-__all__ = ["DONE", "SUPERVISE", "BatchController", "BatchLoop"]
+__all__ = ["DONE", "STEP_END", "SUPERVISE", "BatchController", "BatchLoop"]
 
 _COLUMNS = (
     "t_s", "s_m", "v_mps", "a_mps2", "v_ref_mps", "s_ref_m", "v_limit_mps", "gradient_permil",
@@ -163,27 +164,31 @@ def step_end_arrays(
     ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, table, k, pos, val, braking,
     interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs,
     has_tab, WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated,
-    done, dc,
-) -> bool:  # fmt: skip
+    done, dc, cap,
+) -> int:  # fmt: skip
     """The runner's end of one control step of the members ``ix`` with the controller's
-    commands ``u``, numpy form (the reference of :data:`STEP_END`); False, changing
-    nothing, where a command is not finite. Else: the ATP and the
-    limit columns (:func:`supervise_arrays`; a braking member's command replaced by
-    ``lo_brake[b]``, the lower envelope bound of the scenario's train at its speed),
-    the record row of each member (the columns of ``_COLUMNS`` from ``t … u_N``, the
-    limit columns and the plant's work and saturation before the step, then the info
-    rows ``info_rows`` into the table columns ``icols``) at its step ``k[b]`` of ``table``
-    (steps × columns × members), the plant step
-    (:func:`~train_envs.plants.batch.batch_car_step`, arguments ``ST … has_dist`` and
-    ``share … work`` of :meth:`~train_envs.plants.batch.BatchSingleCar.step_args`,
-    inactive members' commands 0) and the end-of-step checks (:func:`done_arrays`)."""
+    commands ``u``, numpy form (the reference of :data:`STEP_END`). Returns -1, changing
+    nothing, where a command is not finite; else, after
+    the ATP and the limit columns (:func:`supervise_arrays`; a braking member's command
+    replaced by ``lo_brake[b]``, the lower envelope bound of the scenario's train at
+    its speed), the record row of each member (the columns of ``_COLUMNS`` from ``t …
+    u_N``, ``v_ref`` and ``s_ref`` one per member or one for all; the limit columns;
+    the plant's work and saturation before the step; then the info rows ``info_rows``
+    into the table columns ``icols``) at its step ``k[b]`` of ``table`` (steps ×
+    columns × members), the plant step (:func:`~train_envs.plants.batch.batch_car_step`,
+    arguments ``ST … has_dist`` and ``share … work`` of
+    :meth:`~train_envs.plants.batch.BatchSingleCar.step_args`, inactive members'
+    commands 0) and the end-of-step checks (:func:`done_arrays`), the number of the
+    members ``ix`` whose episode goes on (not done, fewer than ``cap`` steps; ``cap``
+    < 0: no cap)."""
     if not np.isfinite(u).all():
-        return False
+        return -1
     n = ix.shape[0]
     limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
     brake = np.empty(n, dtype=bool)
     supervise_arrays(ix, s, v, pos, val, braking, interventions, sp, limit, brake, over, overrun)
     u = np.where(brake, lo_brake[ix], u)
+    v_ref, s_ref = np.broadcast_to(v_ref, (n,)), np.broadcast_to(s_ref, (n,))
     row = [t, s, v, a, v_ref, s_ref, limit, grad, u, u_N, work[0, ix], work[1, ix], sat[ix],
            brake, over, overrun]  # fmt: skip
     vals = np.concatenate([np.array(row, dtype=float), info_rows])
@@ -194,26 +199,28 @@ def step_end_arrays(
     batch_car_step(ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab, WD,
                    has_dist, uf, share, lo, hi, sat, work)  # fmt: skip
     done_arrays(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc)
-    return True
+    live = ~done[ix] if cap < 0 else ~done[ix] & (k[ix] < cap)
+    return int(np.count_nonzero(live))
 
 
 def step_end_loop(
     ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, table, k, pos, val, braking,
     interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs,
     has_tab, WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated,
-    done, dc,
-) -> bool:  # fmt: skip
+    done, dc, cap,
+) -> int:  # fmt: skip
     """:func:`step_end_arrays` member by member (the source of its compiled twin)."""
     n = ix.shape[0]
     for r in range(n):
         if not math.isfinite(u[r]):
-            return False
+            return -1
     limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
     brake = np.empty(n, dtype=np.bool_)
     supervise_loop(ix, s, v, pos, val, braking, interventions, sp, limit, brake, over, overrun)
     uo = np.empty(n)
     uf = np.zeros(ST.shape[0])
     m = info_rows.shape[0]
+    one_ref = 1 if v_ref.shape[0] == 1 else 0
     for r in range(n):
         b = ix[r]
         ur = lo_brake[b] if brake[r] else u[r]
@@ -224,8 +231,8 @@ def step_end_loop(
         table[kb, 1, b] = s[r]
         table[kb, 2, b] = v[r]
         table[kb, 3, b] = a[r]
-        table[kb, 4, b] = v_ref[r]
-        table[kb, 5, b] = s_ref[r]
+        table[kb, 4, b] = v_ref[r if one_ref == 0 else 0]
+        table[kb, 5, b] = s_ref[r if one_ref == 0 else 0]
         table[kb, 6, b] = limit[r]
         table[kb, 7, b] = grad[r]
         table[kb, 8, b] = ur
@@ -241,7 +248,12 @@ def step_end_loop(
     run_batch(ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab, WD, has_dist,
               uf, share, lo, hi, sat, work)  # fmt: skip
     done_loop(ix, uo, ST, u_prev, k, moved, terminated, truncated, done, dc)
-    return True
+    live = 0
+    for r in range(n):
+        b = ix[r]
+        if not done[b] and (cap < 0 or k[b] < cap):
+            live += 1
+    return live
 
 
 #: the name of the runner's end of a control step in :data:`_jit.TWINS` (supervision,
@@ -325,6 +337,10 @@ class BatchLoop:
              sc.t_max_s - 1e-9, float(self.n_max - 1)]
         )  # fmt: skip
         self._end = _jit.implementation(STEP_END)
+        #: whether every member's episode goes on (then a step needs no mask of its own)
+        self._all_live = False
+        self._act_all = np.ones(B, dtype=bool)
+        self._ix_all = np.arange(B)
         self._grad = gradient_table(sc.track)
         # one (steps, columns, members) table: the runner's columns, then INFO_COLUMNS
         self._table = np.full((self.n_max, len(_COLUMNS) + len(INFO_COLUMNS), B), np.nan)
@@ -352,6 +368,7 @@ class BatchLoop:
         self.atp_interventions[b] = 0
         self._last[b] = np.nan
         self._table[:, :, b] = np.nan
+        self._all_live = False
 
     def _active(self) -> np.ndarray:
         act = ~self.done
@@ -363,12 +380,15 @@ class BatchLoop:
     def step(self, mask: np.ndarray | None = None) -> np.ndarray:
         """One control period of every active member (of ``mask``, if given); returns
         the mask stepped. Members may be at different steps of their episodes."""
-        act = self._active()
-        if mask is not None:
-            act &= mask
-        ix = np.flatnonzero(act)
-        if ix.size == 0:
-            return act
+        if self._all_live and mask is None:  # every member goes on (the last step said)
+            act, ix = self._act_all, self._ix_all
+        else:
+            act = self._active()
+            if mask is not None:
+                act &= mask
+            ix = np.flatnonzero(act)
+            if ix.size == 0:
+                return act
         p, sc = self.plant, self.scenario
         full = ix.size == self.B
         sel = slice(None) if full else ix  # (the members' own rows, without a gather)
@@ -393,16 +413,19 @@ class BatchLoop:
         else:
             lo_brake = sc.train.envelope_N(p.ST[:, ST_Z1])[0]
         pos, val = self._limit_table
-        if not self._end(ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols,
+        live = self._end(ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols,
                          self._table, self.k, pos, val, self._braking, self.atp_interventions,
                          self._sp, lo_brake, *head, *tail, self.u_prev, self._moved,
-                         self.terminated, self.truncated, self.done, self._dc):  # fmt: skip
+                         self.terminated, self.truncated, self.done, self._dc,
+                         -1 if self.max_steps is None else self.max_steps)  # fmt: skip
+        if live < 0:
             raise ValueError(f"batched controller returned a non-finite command {u}")
+        self._all_live = live == self.B
         if "fallback" in info:  # what an env step reports of the last control step
             for j, key in enumerate(("fallback", "slack_max", "iterations")):
                 if key in info:
                     self._last[sel, j] = info[key]
-        return act
+        return act.copy() if act is self._act_all else act
 
     def _columns(self, given: tuple[str, ...]) -> tuple[list[str], np.ndarray]:
         """(the info keys recorded, in INFO_COLUMNS order; their table columns) for the
@@ -436,15 +459,15 @@ class BatchLoop:
         return out
 
     def _reference(self, t: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The reference speed and position of each member (at its time or position)."""
+        """The reference speed and position of each member (at its time or position),
+        or one of each for all members where they are in lockstep."""
         ref = self.scenario.reference
         if ref.mode == "distance":
             return np.array([ref.v_ref(0.0, x) for x in s.tolist()]), per_time(t, ref.s_ref)
         t0 = common_time(t)
-        if t0 is not None:  # in lockstep
-            n = t.shape[0]
-            v0, s0 = ref.at_time(t0)
-            return np.full(n, v0), np.full(n, s0)
+        if t0 is not None:  # in lockstep: one value for all members
+            vs = np.array(ref.at_time(t0))
+            return vs[:1], vs[1:]
         vs = per_time(t, ref.at_time)
         return vs[:, 0], vs[:, 1]
 
