@@ -121,6 +121,10 @@ class Backend(ABC):
         """Run ``tasks``; ``on_result(i, outcome)`` as each finishes, ``on_error(i, attempt,
         error, final)`` for every failed attempt. Returns outcomes in task order."""
 
+    def start(self) -> None:  # noqa: B027 - optional hook, no workers by default
+        """Start the workers now, so that their imports overlap what the driver does
+        before the first batch (by default nothing: no workers)."""
+
     def close(self) -> None:  # noqa: B027 - optional hook, nothing to release by default
         """Release workers (idempotent)."""
 
@@ -254,6 +258,13 @@ class ProcessBackend(Backend):
                 initargs=(self.threads_per_worker, os.getpid()),
             )
         return self._pool
+
+    def start(self) -> None:
+        pool = self._get_pool()
+        # a task while no worker is idle starts one: one no-op per worker starts them all
+        # (each imports the library as it unpickles its initializer)
+        for _ in range(self._workers):
+            pool.submit(os.getpid)
 
     def _restart(self) -> None:
         if self._pool is not None:

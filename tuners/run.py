@@ -472,79 +472,89 @@ def tune(
             constraints=s["constraints"],
             constraint_mode=mode,
         )
-        if not resuming:  # unknown metric names: one error here, before any work
-            problem.check_metrics()
-    m = problem.n_obj
-    target_weights, f_bounds = s["target_weights"], s["f_bounds"]
-    if target_weights is not None and len(target_weights) != m:
-        raise ValueError(
-            f"target_weights needs {m} values ({problem.obj_names}), got {target_weights}"
-        )
-    if f_bounds is not None and any(len(b) != m for b in f_bounds):
-        raise ValueError(f"f_bounds needs (lower, upper) with {m} values each, got {f_bounds}")
-    if algo in DECOMPOSITION and 2 < m and pop < m:
-        raise ValueError(
-            f"pop {pop} is below the {m} objectives: {algo} gives each individual one weight "
-            f"vector and needs at least one per objective (pop >= {m}), or use fewer objectives"
-        )
-    weights = list(np.full(m, 1.0 / m) if target_weights is None else target_weights)
-    initial_X = None
-    default_key = None
-    if s["include_defaults"] and hasattr(problem, "default_x"):
-        initial_X = problem.default_x()[None, :]
-        default_key = problem.key(initial_X[0])
-    run_config = {
-        "env_id": str(env_name),
-        "algo": algo,
-        "pop": pop,
-        "iters": iters,
-        "seed": seed,
-        "seeds": list(getattr(problem, "seeds", []) or []),
-        "objective_names": list(problem.obj_names),
-        "constraint_names": list(problem.constr_names),
-        "param_names": list(problem.var_names),
-        "target_weights": [float(v) for v in weights],
-        "f_bounds": None if f_bounds is None else [list(map(float, b)) for b in f_bounds],
-        "normalization": normalization,
-        "include_defaults": bool(s["include_defaults"]),
-        "algo_kwargs": dict(s["algo_kwargs"] or {}),
-        "fingerprint": problem.fingerprint_hash(),
-        "problem": problem.fingerprint(),
-        "default_key": default_key,
-        "code": code,
-    }
-    if resuming and stored.get("fingerprint") != run_config["fingerprint"]:
-        old, new = stored.get("problem") or {}, run_config["problem"]
-        keys = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
-        raise ValueError(
-            f"cannot resume study {study_name!r}: the problem differs in "
-            + "; ".join(f"{k} (stored {old.get(k)!r}, now {new.get(k)!r})" for k in keys)
-        )
-    checks = ("fingerprint", "algo", "pop", "seed") + (() if allow_code_change else ("code",))
-    store = StudyStore(storage, study_name, problem, run_config, resume=resuming, check_keys=checks)
+    be = make_backend(
+        backend or default_backend(problem),
+        workers,
+        address=dask_address,
+        client=dask_client,
+        max_retries=max_retries,
+    )
+    be.start()  # the workers start while the driver checks the problem and opens the study
     try:
-        return _run(
-            store,
-            problem,
-            run_config,
-            initial_X,
-            weights,
-            f_bounds,
-            storage,
-            backend=make_backend(
-                backend or default_backend(problem),
-                workers,
-                address=dask_address,
-                client=dask_client,
-                max_retries=max_retries,
-            ),
-            progress=progress,
-            callback=callback,
-            on_evaluation=on_evaluation,
-            t_start=t_start,
+        if not resuming and not isinstance(env_id, TaskProblem):
+            problem.check_metrics()  # unknown metric names: one error here, before any work
+        m = problem.n_obj
+        target_weights, f_bounds = s["target_weights"], s["f_bounds"]
+        if target_weights is not None and len(target_weights) != m:
+            raise ValueError(
+                f"target_weights needs {m} values ({problem.obj_names}), got {target_weights}"
+            )
+        if f_bounds is not None and any(len(b) != m for b in f_bounds):
+            raise ValueError(f"f_bounds needs (lower, upper) with {m} values each, got {f_bounds}")
+        if algo in DECOMPOSITION and 2 < m and pop < m:
+            raise ValueError(
+                f"pop {pop} is below the {m} objectives: {algo} gives each individual one weight "
+                f"vector and needs at least one per objective (pop >= {m}), or use fewer objectives"
+            )
+        weights = list(np.full(m, 1.0 / m) if target_weights is None else target_weights)
+        initial_X = None
+        default_key = None
+        if s["include_defaults"] and hasattr(problem, "default_x"):
+            initial_X = problem.default_x()[None, :]
+            default_key = problem.key(initial_X[0])
+        run_config = {
+            "env_id": str(env_name),
+            "algo": algo,
+            "pop": pop,
+            "iters": iters,
+            "seed": seed,
+            "seeds": list(getattr(problem, "seeds", []) or []),
+            "objective_names": list(problem.obj_names),
+            "constraint_names": list(problem.constr_names),
+            "param_names": list(problem.var_names),
+            "target_weights": [float(v) for v in weights],
+            "f_bounds": None if f_bounds is None else [list(map(float, b)) for b in f_bounds],
+            "normalization": normalization,
+            "include_defaults": bool(s["include_defaults"]),
+            "algo_kwargs": dict(s["algo_kwargs"] or {}),
+            "fingerprint": problem.fingerprint_hash(),
+            "problem": problem.fingerprint(),
+            "default_key": default_key,
+            "code": code,
+        }
+        if resuming and stored.get("fingerprint") != run_config["fingerprint"]:
+            old, new = stored.get("problem") or {}, run_config["problem"]
+            keys = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+            raise ValueError(
+                f"cannot resume study {study_name!r}: the problem differs in "
+                + "; ".join(f"{k} (stored {old.get(k)!r}, now {new.get(k)!r})" for k in keys)
+            )
+        checks = ("fingerprint", "algo", "pop", "seed") + (() if allow_code_change else ("code",))
+        store = StudyStore(
+            storage, study_name, problem, run_config, resume=resuming, check_keys=checks
         )
+        try:
+            return _run(
+                store,
+                problem,
+                run_config,
+                initial_X,
+                weights,
+                f_bounds,
+                storage,
+                backend=be,
+                progress=progress,
+                callback=callback,
+                on_evaluation=on_evaluation,
+                t_start=t_start,
+            )
+        finally:
+            store.close()
+    except BaseException:
+        be.terminate()  # (workers that may still be starting)
+        raise
     finally:
-        store.close()
+        be.close()
 
 
 def _run(
