@@ -162,9 +162,8 @@ _jit.register(DONE, done_arrays, source=done_loop)
 
 def step_end_arrays(
     ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, table, k, pos, val, braking,
-    interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs,
-    has_tab, WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated,
-    done, dc, cap,
+    interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab,
+    WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated, done, dc, cap,
 ) -> int:  # fmt: skip
     """The runner's end of one control step of the members ``ix`` with the controller's
     commands ``u``, numpy form (the reference of :data:`STEP_END`). Returns -1, changing
@@ -205,9 +204,8 @@ def step_end_arrays(
 
 def step_end_loop(
     ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, table, k, pos, val, braking,
-    interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs,
-    has_tab, WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated,
-    done, dc, cap,
+    interventions, sp, lo_brake, ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab,
+    WD, has_dist, share, lo, hi, sat, work, u_prev, moved, terminated, truncated, done, dc, cap,
 ) -> int:  # fmt: skip
     """:func:`step_end_arrays` member by member (the source of its compiled twin)."""
     n = ix.shape[0]
