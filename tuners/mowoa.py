@@ -127,11 +127,14 @@ def _energy_cache_path(n_obj: int, n: int, seed: int) -> Path:
 
 def _load_directions(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
     """The directions stored at ``path`` (a plain ``.npy`` array, read without
-    pickle), or None where the file is missing, unreadable or not ``shape`` rows of
-    finite non-negative numbers."""
+    pickle), or None where the file is missing, unreadable, not a plain array or not
+    ``shape`` rows of finite non-negative numbers."""
     try:
-        w = np.load(path, allow_pickle=False)
-    except (OSError, ValueError):
+        with open(path, "rb") as fh:
+            w = np.load(fh, allow_pickle=False)
+            if not isinstance(w, np.ndarray):  # (an .npz archive)
+                return None
+    except Exception:  # noqa: BLE001 - whatever cannot be read is computed again
         return None
     if w.shape != shape or w.dtype != np.float64 or not np.isfinite(w).all() or (w < 0).any():
         return None

@@ -179,10 +179,13 @@ def test_energy_weight_vectors_are_kept_on_disk_and_a_bad_file_is_recomputed(tmp
     assert np.array_equal(stored, get_reference_directions("energy", n_obj, n, seed=seed))
     # a second process reads the file: the same vectors, bit for bit
     assert mowoa._weight_vectors_cached.__wrapped__(n_obj, n, seed) == expected
-    # a file of the wrong shape, or one that is not a plain array, is computed again
-    for bad in (np.zeros((2, 3)), None):
-        if bad is None:
-            path.write_bytes(b"not an npy file")
+    # a file of the wrong shape, an empty or foreign file, an .npz archive: computed again
+    for bad in (np.zeros((2, 3)), b"", b"not an npy file", "npz"):
+        if isinstance(bad, bytes):
+            path.write_bytes(bad)
+        elif isinstance(bad, str):
+            with open(path, "wb") as fh:
+                np.savez(fh, w=stored)
         else:
             np.save(path, bad)
         assert mowoa._weight_vectors_cached.__wrapped__(n_obj, n, seed) == expected
