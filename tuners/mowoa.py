@@ -48,6 +48,7 @@ cosine similarity of the subproblem weights to the target (:func:`select_by_cosi
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import tempfile
@@ -146,12 +147,16 @@ def _store_directions(path: Path, w: np.ndarray) -> None:
     directory cannot be written."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npy")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    except OSError:
+        return
+    try:
         with os.fdopen(fd, "wb") as fh:
             np.save(fh, w, allow_pickle=False)
         os.replace(tmp, path)
     except OSError:
-        pass
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
 
 
 def weight_vectors(n_obj: int, n: int, seed: int = 1) -> np.ndarray:

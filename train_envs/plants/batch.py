@@ -18,14 +18,13 @@ its single plant bit for bit (tested).
 
 from __future__ import annotations
 
-from bisect import bisect_right
 from collections.abc import Sequence
 
 import numpy as np
 
 from train_envs import _jit
 from train_envs.plants.multi_car import TrainPlant
-from train_envs.plants.physics import davis_signed_N
+from train_envs.plants.physics import davis_signed_N, gradient_at
 from train_envs.plants.single_car import (
     ST_STOPPED,
     ST_T,
@@ -150,18 +149,16 @@ _jit.register(BATCH_CAR_STEP, batch_car_step, source=run_batch, helpers=CAR_STEP
 
 def accel_arrays(ST, order, K, XL, Y0L, SL, offs, has_tab, d, has_dist, g, out) -> None:
     """Each member's gradient [‰] at its position into ``g`` (its table ``XL[offs[b]:
-    offs[b+1]]``, ``Y0L``, ``SL``: :class:`~train_envs.plants.lookup.PiecewiseLinear`'s
-    ``y0[i] + slope[i] (s − x[i])``; 0 without tables) and its acceleration
+    offs[b+1]]``, ``Y0L``, ``SL``, read by :func:`~train_envs.plants.physics.gradient_at`;
+    0 without tables) and its acceleration
     ``F/m' + N(s, v, t)`` [m/s²] (0 when held) into ``out``, numpy form: the reference
     of :data:`BATCH_ACCEL`. ``K`` rows: Davis a, b, c per member, m g / 1000, m, 1/m',
     the force coefficient; ``d``: the members' disturbance sums."""
     v = ST[:, ST_Z1]
     if has_tab:
-        s = ST[:, ST_Z0]
         for b in range(ST.shape[0]):  # (each member's own table)
-            o0 = int(offs[b])
-            i = o0 + int(XL[o0 : offs[b + 1]].searchsorted(s[b], side="right")) - 1
-            g[b] = Y0L[i] + SL[i] * (s[b] - XL[i])
+            o0, o1 = offs[b], offs[b + 1]
+            g[b] = gradient_at(XL[o0:o1], Y0L[o0:o1], SL[o0:o1], ST[b, ST_Z0])
     else:
         g[:] = 0.0
     a0, b0, c0, mg0, m0, minv0, acc_coef = K
@@ -183,10 +180,8 @@ def accel_loop(ST, order, K, XL, Y0L, SL, offs, has_tab, d, has_dist, g, out) ->
         v = ST[b, ST_Z1]
         gb = 0.0
         if has_tab:
-            o0 = offs[b]
-            x = ST[b, ST_Z0]
-            i = o0 + bisect_right(XL[o0 : offs[b + 1]], x) - 1
-            gb = Y0L[i] + SL[i] * (x - XL[i])
+            o0, o1 = offs[b], offs[b + 1]
+            gb = gradient_at(XL[o0:o1], Y0L[o0:o1], SL[o0:o1], ST[b, ST_Z0])
         g[b] = gb
         av = v if v >= 0.0 else -v
         f = K[0, b] + K[1, b] * av + K[2, b] * av * av
@@ -203,7 +198,10 @@ def accel_loop(ST, order, K, XL, Y0L, SL, offs, has_tab, d, has_dist, g, out) ->
 #: the name of the population's acceleration read-out in :data:`train_envs._jit.TWINS`
 BATCH_ACCEL = "plants.batch_accel"
 _jit.register(
-    BATCH_ACCEL, accel_arrays, source=accel_loop, helpers={"bisect_right": _jit.bisect_right}
+    BATCH_ACCEL,
+    accel_arrays,
+    source=accel_loop,
+    helpers={"bisect_right": _jit.bisect_right, "gradient_at": gradient_at},
 )
 
 
@@ -255,10 +253,9 @@ class BatchSingleCar:
         ]
         self.offs = np.concatenate([[0], np.cumsum([len(t[0]) for t in tabs])]).astype(np.int64)
         self.XL, self.Y0L, self.SL = (np.concatenate([t[j] for t in tabs]) for j in range(3))
-        self._tables = [p.gradient_permil for p in plants]
-        self._same_table = all(g is self._tables[0] for g in self._tables)
         #: the one gradient table of every member (None: several, or none)
-        self.table = self._tables[0] if self._same_table else None
+        same = all(p.gradient_permil is p0.gradient_permil for p in plants)
+        self.table = p0.gradient_permil if same else None
         self.BL = np.stack([p._buffer[:, 0] for p in plants])
         self.heads = np.array([p._head for p in plants], dtype=np.int64)
         # per-member constants of the read-outs (NonlinearTerm.single, the envelope)
@@ -358,14 +355,6 @@ class BatchSingleCar:
     def force(self) -> np.ndarray:
         """The actual (post-actuator) force of each member [N]."""
         return self.ST[:, ST_Z2] if self.order else self.ST[:, ST_W]
-
-    def gradient(self, s: np.ndarray) -> np.ndarray:
-        """The members' equivalent gradients [‰] at positions ``s`` (their own tables)."""
-        if not self.has_tab:
-            return np.zeros(self.B)
-        if self._same_table:
-            return self._tables[0](s)
-        return np.array([g(float(x)) for g, x in zip(self._tables, s.tolist(), strict=True)])
 
     def accel(self) -> np.ndarray:
         """Lead-car acceleration of each member [m/s²] (0 when held), as

@@ -8,8 +8,8 @@ operations, the ATP supervises each member (:mod:`.supervision`), and the rows a
 recorded into one (steps × members) array per column. A member whose episode is over
 (the runner's termination and truncation, or the step cap) stops stepping; the others
 go on. Everything after the controller (the ATP and the limit columns, :data:`SUPERVISE`;
-the record row; the plant step; the end-of-step checks, :data:`DONE`) is one call of
-the registered twin :data:`STEP_END` (numpy reference, compiled member loop).
+the record row; the plant step; the end-of-step checks, :func:`done_arrays`) is one call
+of the registered twin :data:`STEP_END` (numpy reference, compiled member loop).
 :meth:`BatchLoop.arrays` gives each member the columns of
 :meth:`ClosedLoop.arrays`, :meth:`BatchLoop.metrics` its
 :func:`~train_envs.metrics.episode_metrics`. The runner adds no arithmetic of its own:
@@ -46,7 +46,7 @@ from train_envs.simulation.supervision import (
     permitted_speed_table,
 )
 
-__all__ = ["DONE", "STEP_END", "SUPERVISE", "BatchController", "BatchLoop"]
+__all__ = ["STEP_END", "SUPERVISE", "BatchController", "BatchLoop"]
 
 _COLUMNS = (
     "t_s", "s_m", "v_mps", "a_mps2", "v_ref_mps", "s_ref_m", "v_limit_mps", "gradient_permil",
@@ -113,8 +113,8 @@ def done_arrays(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc) ->
     terminated at rest after moving or beyond ``s_stop + overrun`` (stop scenarios),
     else at the end time; truncated at the end time or the table's last row. ``dc`` =
     stop (1/0), s_stop + overrun, t_max − 1e-9, the last step; ``ST``: the plant state
-    rows (:mod:`train_envs.plants.single_car` layout). Numpy form, the reference of
-    :data:`DONE`."""
+    rows (:mod:`train_envs.plants.single_car` layout). Numpy form (:func:`done_loop`
+    member by member; both run inside :data:`STEP_END`)."""
     has_stop, s_end, t_end, k_last = dc.tolist()
     u_prev[ix] = u
     k[ix] += 1
@@ -151,13 +151,12 @@ def done_loop(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc) -> N
         done[b] = term or trunc
 
 
-#: the names of the runner's supervision and end-of-step twins in :data:`_jit.TWINS`
+#: the name of the runner's supervision twin in :data:`_jit.TWINS` (tested on its own;
+#: the runner calls it inside :data:`STEP_END`)
 SUPERVISE = "simulation.batch_supervise"
-DONE = "simulation.batch_done"
 _jit.register(
     SUPERVISE, supervise_arrays, source=supervise_loop, helpers={"bisect_right": _jit.bisect_right}
 )
-_jit.register(DONE, done_arrays, source=done_loop)
 
 
 def step_end_arrays(
@@ -405,8 +404,8 @@ class BatchLoop:
         info_rows = np.array([info[key] for key in keys], dtype=float) if keys else np.empty((0, n))
         head, tail = p.step_args(self.dt, act)
         # the ATP's brake: the scenario's train's lower bound (the plant's reading where
-        # every member runs on that train)
-        if p.single_train() is sc.train:
+        # every member runs on that train; unused without the ATP)
+        if not self.supervision.atp or p.single_train() is sc.train:
             lo_brake = tail[1]
         else:
             lo_brake = sc.train.envelope_N(p.ST[:, ST_Z1])[0]
@@ -449,11 +448,6 @@ class BatchLoop:
         ):
             if x == x:
                 out[key] = int(x) if key == "iterations" else x
-        return out
-
-    def _scatter(self, x: np.ndarray, ix: np.ndarray) -> np.ndarray:
-        out = np.zeros(self.B)
-        out[ix] = x
         return out
 
     def _reference(self, t: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

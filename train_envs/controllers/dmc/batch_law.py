@@ -391,8 +391,9 @@ def plan_loop(
     M, du_rows = cp[0], cp[1]
     P, L = y_r.shape[1], K.shape[0]
     lo_f, hi_f = bounds_loop(v_plan.reshape(-1), tv, ev, Ke)
-    lo = lo_f.reshape(v_plan.shape)
-    hi = hi_f.reshape(v_plan.shape)
+    lo_o[:] = lo_f.reshape(v_plan.shape)
+    hi_o[:] = hi_f.reshape(v_plan.shape)
+    lo, hi = lo_o, hi_o
     fails = 0
     dv = np.empty(P)
     dU = np.empty(L)
@@ -438,9 +439,6 @@ def plan_loop(
         ok_o[r] = ok
         u_a_o[r] = lev[0]
         fails += 0 if ok else 1
-        for k in range(P):
-            lo_o[r, k] = lo[r, k]
-            hi_o[r, k] = hi[r, k]
     return fails
 
 
