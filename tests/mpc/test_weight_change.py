@@ -260,4 +260,28 @@ def test_stage_weights_fill_the_block_diagonal_stage_by_stage():
             )
             r += L.shape[0]
             c += X.shape[0]
-    assert np.array_equal(wt.W, W) and np.array_equal(wt.Lw, Lw)
+    # its products are those of the dense matrices: exactly where a column of W (a row
+    # of Lw) has one non-zero entry, the terminal block's product on its own rows and
+    # columns (BLAS may sum a full dense row in another order)
+    X = rng.normal(size=(5, n))
+    Y = rng.normal(size=(n, 4))
+    c0, r0 = n - 3, Lw.shape[0] - facs[-1].shape[0]
+
+    def check(wt, W, Lw):
+        XW, LY = wt.right(X), wt.factor(Y)
+        assert np.array_equal(XW[:, :c0], (X @ W)[:, :c0])
+        assert np.array_equal(XW[:, c0:], X[:, c0:] @ W[c0:, c0:])
+        assert np.array_equal(LY[:r0], (Lw @ Y)[:r0])
+        assert np.array_equal(LY[r0:], Lw[r0:, c0:] @ Y[c0:])
+        np.testing.assert_allclose(XW, X @ W, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(LY, Lw @ Y, rtol=1e-14, atol=1e-14)
+
+    check(wt, W, Lw)
+    # a zero stage scale leaves a zero factor row
+    blocks[0] = (np.array([1.0, 0.0, 2.0, 0.0, 1.0, 3.0]), 6, blocks[0][2])
+    Wz, Lz = W.copy(), Lw.copy()
+    for t in range(6):
+        s_t = float(blocks[0][0][t])
+        Wz[3 * t : 3 * t + 3, 3 * t : 3 * t + 3] = s_t * blocks[0][2]
+        Lz[2 * t : 2 * t + 2, 3 * t : 3 * t + 3] = float(np.sqrt(s_t)) * facs[0]
+    check(_stage_weights(blocks), Wz, Lz)

@@ -46,8 +46,10 @@ def _memo_put(memo: dict, key: object, value: np.ndarray) -> np.ndarray:
 _DIAG_SQRT_MAX = 25
 
 
-def _diagonal_sqrt(d: np.ndarray) -> np.ndarray:
-    """The factor ``numpy.linalg.eigh`` gives :func:`_psd_sqrt` for ``diag(d)``, without it.
+def _diagonal_factor(d: np.ndarray) -> tuple[list[int], list[float]]:
+    """The rows of the factor ``numpy.linalg.eigh`` gives :func:`_psd_sqrt` for
+    ``diag(d)``, without it: row ``i`` has the one entry ``vals[i]`` in column
+    ``cols[i]``.
 
     For a diagonal matrix of order n <= 25 LAPACK's ``dsyevd`` (through ``dstedc`` and
     ``dsteqr``) leaves the eigenvalues in place with unit eigenvectors and only orders
@@ -68,9 +70,14 @@ def _diagonal_sqrt(d: np.ndarray) -> np.ndarray:
             perm[i], perm[k] = perm[k], perm[i]
     top = max(1.0, max((abs(x) for x in lam), default=0.0))
     rows = [r for r in range(n) if lam[r] > 1e-14 * top]
-    L = np.zeros((len(rows), n))
-    for i, r in enumerate(rows):
-        L[i, perm[r]] = math.sqrt(lam[r])
+    return [perm[r] for r in rows], [math.sqrt(lam[r]) for r in rows]
+
+
+def _diagonal_sqrt(d: np.ndarray) -> np.ndarray:
+    """The factor of :func:`_psd_sqrt` for ``diag(d)`` (:func:`_diagonal_factor`'s rows)."""
+    cols, vals = _diagonal_factor(d)
+    L = np.zeros((len(cols), d.size))
+    L[np.arange(len(cols)), cols] = vals
     return L
 
 
@@ -110,71 +117,109 @@ def _checked_weight(name: str, value: ArrayLike, dim: int) -> np.ndarray:
 
 
 class _ResidualWeight:
-    """The block-diagonal residual weight ``W`` and its factor ``Lw`` (``LwᵀLw = W``).
+    """The block-diagonal residual weight ``W`` and its factor ``Lw`` (``LwᵀLw = W``),
+    as the products with them need them.
 
-    Products with them take the exact shortcuts of the leading diagonal blocks (the
-    stage weights): there ``W`` scales columns (``X @ W``) and the factor rows, one entry
-    each, scale and pick rows (``Lw @ Y``); the blocks from the first full one on (a
-    terminal cost) multiply only their own rows and columns. Each entry of such a
-    product has the dense product's non-zero terms in the same order, so the shortcut
-    gives the dense product's numbers.
+    The leading diagonal blocks (the stage weights) are kept as ``W``'s diagonal ``d``
+    and the factor's rows, one entry each (``vals`` in ``cols``): there ``X @ W`` scales
+    columns and ``Lw @ Y`` scales and picks rows; the blocks from the first full one on
+    (a terminal cost) are the dense ``W_tail`` and ``Lw_tail``, which multiply only
+    their own rows and columns. Each entry of such a product has the dense product's
+    non-zero terms in the same order, so the shortcut gives the dense product's numbers.
     """
 
-    __slots__ = ("W", "Lw", "_c0", "_r0", "_d", "_rows")
+    __slots__ = ("n", "_d", "_cols", "_vals", "_tail", "_tail_f")
 
-    def __init__(self, W: np.ndarray, Lw: np.ndarray, c0: int, r0: int) -> None:
-        """``c0``, ``r0``: the first column of ``W`` and the first row of ``Lw`` past
-        the leading diagonal blocks."""
-        self.W, self.Lw, self._c0, self._r0 = W, Lw, c0, r0
-        self._d = W.diagonal()[:c0].copy()
-        cols = np.argmax(Lw[:r0, :c0] != 0.0, axis=1) if c0 else np.zeros(0, dtype=np.intp)
-        self._rows = (cols, Lw[np.arange(r0), cols])
+    def __init__(
+        self,
+        n: int,
+        d: np.ndarray,
+        cols: np.ndarray,
+        vals: np.ndarray,
+        tail: np.ndarray,
+        tail_f: np.ndarray,
+    ) -> None:
+        """``n``: the order of ``W``; ``d``, ``cols``, ``vals``: the leading diagonal
+        blocks (``d.size`` columns); ``tail``, ``tail_f``: ``W`` and ``Lw`` from there on."""
+        self.n, self._d, self._cols, self._vals = n, d, cols, vals
+        self._tail, self._tail_f = tail, tail_f
 
     def right(self, X: np.ndarray) -> np.ndarray:
         """``X @ W``."""
-        c0, n = self._c0, self.W.shape[0]
+        c0 = self._d.size
         if c0 == 0:
-            return X @ self.W
-        if c0 == n:
+            return X @ self._tail
+        if c0 == self.n:
             return np.multiply(X, self._d, order="C")
-        out = np.empty((X.shape[0], n))
+        out = np.empty((X.shape[0], self.n))
         np.multiply(X[:, :c0], self._d, out=out[:, :c0])
-        out[:, c0:] = X[:, c0:] @ self.W[c0:, c0:]
+        out[:, c0:] = X[:, c0:] @ self._tail
         return out
 
     def factor(self, Y: np.ndarray) -> np.ndarray:
         """``Lw @ Y``."""
-        c0, r0 = self._c0, self._r0
+        c0 = self._d.size
         if c0 == 0:
-            return self.Lw @ Y
-        cols, vals = self._rows
-        head = vals[:, None] * Y[cols]
-        if c0 == self.W.shape[0]:
+            return self._tail_f @ Y
+        head = self._vals[:, None] * Y[self._cols]
+        if c0 == self.n:
             return head
-        return np.vstack([head, self.Lw[r0:, c0:] @ Y[c0:]])
+        return np.vstack([head, self._tail_f @ Y[c0:]])
 
 
 def _stage_weights(blocks: list[tuple[np.ndarray | None, int, np.ndarray]]) -> _ResidualWeight:
     """The residual weight of ``blocks``: ``(scales, k, X)`` per weighted residual, ``X``
     repeated on ``k`` stages, stage ``t`` scaled by ``scales[t]`` (``None``: 1) and its
-    factor rows by ``sqrt(scales[t])`` -- ``block_diag(kron(diag(scales), X), ...)``
-    filled in place."""
-    facs = [_psd_sqrt(X) for _, _, X in blocks]
-    W = np.zeros((sum(k * X.shape[0] for _, k, X in blocks),) * 2)
-    n_rows = sum(k * L.shape[0] for (_, k, _), L in zip(blocks, facs, strict=True))
-    Lw = np.zeros((n_rows, W.shape[0]))
-    r = c = 0
-    first_full: tuple[int, int] | None = None
-    for (scales, k, X), L in zip(blocks, facs, strict=True):
-        d, rl = X.shape[0], L.shape[0]
-        if first_full is None and not _is_diagonal(X):
-            first_full = (c, r)
-        # the k diagonal blocks at once: W[c:, c:] and Lw[r:, c:] as (k, d, k, d) and
+    factor rows by ``sqrt(scales[t])`` -- ``block_diag(kron(diag(scales), X), ...)``.
+
+    The leading blocks with a diagonal ``X`` (of order <= 25) give their diagonal and
+    factor rows as arrays (stage by stage the same products ``s_t X_jj`` and
+    ``sqrt(s_t) L_ij``); the rest is filled densely.
+    """
+    # (on Python floats: the same IEEE products and square roots as numpy's)
+    d: list[float] = []
+    cols: list[int] = []
+    vals: list[float] = []
+    c = 0
+    i0 = len(blocks)
+    for i, (scales, k, X) in enumerate(blocks):
+        dim = X.shape[0]
+        if not (0 < dim <= _DIAG_SQRT_MAX and _is_diagonal(X)):
+            i0 = i
+            break
+        diag = X.diagonal().tolist()
+        fc, fv = _diagonal_factor(X.diagonal())
+        if scales is None:
+            d += diag * k
+            vals += fv * k
+        else:
+            sl = scales.tolist()
+            d += [s_t * x for s_t in sl for x in diag]
+            vals += [math.sqrt(s_t) * v for s_t in sl for v in fv]
+        cols += [c + dim * t + j for t in range(k) for j in fc]
+        c += k * dim
+    # a row whose value is 0 (a zero stage scale) points at column 0, as the row scan of
+    # the dense factor would
+    picked = [j if v != 0.0 else 0 for j, v in zip(cols, vals, strict=True)]
+    cols_all = np.array(picked, dtype=np.intp)
+    d_all, vals_all = np.array(d, dtype=float), np.array(vals, dtype=float)
+    rest = blocks[i0:]
+    if len(rest) == 1 and rest[0][0] is None and rest[0][1] == 1:  # one terminal block
+        X = rest[0][2]
+        return _ResidualWeight(c + X.shape[0], d_all, cols_all, vals_all, X, _psd_sqrt(X))
+    facs = [_psd_sqrt(X) for _, _, X in rest]
+    nt = sum(k * X.shape[0] for _, k, X in rest)
+    W = np.zeros((nt, nt))
+    Lw = np.zeros((sum(k * L.shape[0] for (_, k, _), L in zip(rest, facs, strict=True)), nt))
+    r = ct = 0
+    for (scales, k, X), L in zip(rest, facs, strict=True):
+        dim, rl = X.shape[0], L.shape[0]
+        # the k diagonal blocks at once: W[ct:, ct:] and Lw[r:, ct:] as (k, d, k, d) and
         # (k, rl, k, d) views, the blocks on their diagonal (stage by stage the same
         # products s_t X and sqrt(s_t) L)
         t = np.arange(k)
-        Wb = W[c : c + k * d, c : c + k * d].reshape(k, d, k, d)
-        Lb = Lw[r : r + k * rl, c : c + k * d].reshape(k, rl, k, d)
+        Wb = W[ct : ct + k * dim, ct : ct + k * dim].reshape(k, dim, k, dim)
+        Lb = Lw[r : r + k * rl, ct : ct + k * dim].reshape(k, rl, k, dim)
         if scales is None:
             Wb[t, :, t, :] = X
             Lb[t, :, t, :] = L
@@ -182,8 +227,8 @@ def _stage_weights(blocks: list[tuple[np.ndarray | None, int, np.ndarray]]) -> _
             Wb[t, :, t, :] = scales[:, None, None] * X
             Lb[t, :, t, :] = np.sqrt(scales)[:, None, None] * L
         r += k * rl
-        c += k * d
-    return _ResidualWeight(W, Lw, *(first_full or (c, r)))
+        ct += k * dim
+    return _ResidualWeight(c + nt, d_all, cols_all, vals_all, W, Lw)
 
 
 @dataclass(frozen=True)

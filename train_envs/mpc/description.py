@@ -60,17 +60,22 @@ def _weight_eigh(
         w = np.diag(w)
     if w.shape != (dim, dim):
         raise ValueError(f"{name} must have shape ({dim}, {dim}), got {w.shape}")
-    if not np.all(np.isfinite(w)):
-        raise ValueError(f"{name} must contain only finite values")
     if not dim:
+        if not np.all(np.isfinite(w)):
+            raise ValueError(f"{name} must contain only finite values")
         return w, None
     eig = None
     if _is_diagonal(w):
         # a diagonal weight (the usual case, at every weight change): symmetric as it is,
-        # PSD by its diagonal
-        d = np.diagonal(w)
-        lam_min, scale = float(d.min()), max(1.0, float(np.max(np.abs(d))))
+        # PSD by its diagonal; a NaN or an infinity off the diagonal would count as
+        # non-zero, so only the diagonal can hold one (checked on Python floats)
+        d = np.diagonal(w).tolist()
+        if not all(map(math.isfinite, d)):
+            raise ValueError(f"{name} must contain only finite values")
+        lam_min, scale = min(d), max(1.0, max(map(abs, d)))
     else:
+        if not np.all(np.isfinite(w)):
+            raise ValueError(f"{name} must contain only finite values")
         scale = max(1.0, float(np.max(np.abs(w))))
         if np.max(np.abs(w - w.T)) > 1e-9 * scale:
             raise ValueError(f"{name} must be symmetric")
