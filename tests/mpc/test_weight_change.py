@@ -285,3 +285,19 @@ def test_stage_weights_fill_the_block_diagonal_stage_by_stage():
         Wz[3 * t : 3 * t + 3, 3 * t : 3 * t + 3] = s_t * blocks[0][2]
         Lz[2 * t : 2 * t + 2, 3 * t : 3 * t + 3] = float(np.sqrt(s_t)) * facs[0]
     check(_stage_weights(blocks), Wz, Lz)
+
+
+def test_diagonal_factor_is_the_factor_eigh_gives():
+    """A diagonal weight's factor without LAPACK equals the one from ``eigh`` bit for bit
+    (rows, their order among equal weights, dropped zero weights)."""
+    from train_envs.mpc.assembly import _diagonal_sqrt, _eigh_sqrt
+
+    rng = np.random.default_rng(11)
+    for _ in range(3000):
+        n = int(rng.integers(1, 26))
+        d = rng.choice([0.0, 1.0, 2.5, 1e-9, 1e6], n) * rng.choice([1.0, 1.0, 3.0], n)
+        d[rng.random(n) < 0.3] = rng.uniform(0.0, 10.0)  # repeated values
+        got = _diagonal_sqrt(d)
+        want = _eigh_sqrt(*np.linalg.eigh(np.diag(d)))
+        assert got.shape == want.shape
+        assert got.tobytes() == want.tobytes()

@@ -46,7 +46,7 @@ def _memo_put(memo: dict, key: object, value: np.ndarray) -> np.ndarray:
 _DIAG_SQRT_MAX = 25
 
 
-def _diagonal_factor(d: np.ndarray) -> tuple[list[int], list[float]]:
+def _diagonal_factor(d: list[float]) -> tuple[list[int], list[float]]:
     """The rows of the factor ``numpy.linalg.eigh`` gives :func:`_psd_sqrt` for
     ``diag(d)``, without it: row ``i`` has the one entry ``vals[i]`` in column
     ``cols[i]``.
@@ -57,8 +57,8 @@ def _diagonal_factor(d: np.ndarray) -> tuple[list[int], list[float]]:
     pass; this replays that sort, so the rows (and their order among equal weights) are
     the same numbers as the ``eigh`` path's, at a fraction of its cost.
     """
-    n = d.size
-    lam = d.tolist()
+    n = len(d)
+    lam = list(d)
     perm = list(range(n))
     for i in range(n - 1):
         k, p = i, lam[i]
@@ -75,7 +75,7 @@ def _diagonal_factor(d: np.ndarray) -> tuple[list[int], list[float]]:
 
 def _diagonal_sqrt(d: np.ndarray) -> np.ndarray:
     """The factor of :func:`_psd_sqrt` for ``diag(d)`` (:func:`_diagonal_factor`'s rows)."""
-    cols, vals = _diagonal_factor(d)
+    cols, vals = _diagonal_factor(d.tolist())
     L = np.zeros((len(cols), d.size))
     L[np.arange(len(cols)), cols] = vals
     return L
@@ -188,7 +188,7 @@ def _stage_weights(blocks: list[tuple[np.ndarray | None, int, np.ndarray]]) -> _
             i0 = i
             break
         diag = X.diagonal().tolist()
-        fc, fv = _diagonal_factor(X.diagonal())
+        fc, fv = _diagonal_factor(diag)
         if scales is None:
             d += diag * k
             vals += fv * k
