@@ -123,9 +123,10 @@ class _ResidualWeight:
     The leading diagonal blocks (the stage weights) are kept as ``W``'s diagonal ``d``
     and the factor's rows, one entry each (``vals`` in ``cols``): there ``X @ W`` scales
     columns and ``Lw @ Y`` scales and picks rows; the blocks from the first full one on
-    (a terminal cost) are the dense ``W_tail`` and ``Lw_tail``, which multiply only
-    their own rows and columns. Each entry of such a product has the dense product's
-    non-zero terms in the same order, so the shortcut gives the dense product's numbers.
+    (a terminal cost) are kept dense (``tail``, ``tail_f``: ``W`` and ``Lw`` from there
+    on) and multiply only their own rows and columns. Each entry of such a product has
+    the dense product's non-zero terms in the same order, so the shortcut gives the dense
+    product's numbers.
     """
 
     __slots__ = ("n", "_d", "_cols", "_vals", "_tail", "_tail_f")
