@@ -86,30 +86,12 @@ def test_dgemv_at_an_address_sums_as_ndarray_dot():
     fast = _jit.compiled(rows, {"dgemv_at": _jit.DGEMV})
     rows(addr, *(np.eye(2),) * 3, 2)  # (the Python meaning runs too)
     rng = np.random.default_rng(1)
-    for m in (15, 9):  # all rows, the first rows (as the DMC's prediction)
-        A = rng.standard_normal((15, 12)) * rng.uniform(0.1, 10.0)
-        X = rng.standard_normal((8, 12)) * rng.uniform(1e-3, 1e2)
+    for i in range(50):
+        # all rows of square and wide matrices, and the first rows (the DMC's prediction)
+        n, m = (15, 15) if i % 3 == 0 else (12, 15 if i % 3 == 1 else 9)
+        A = rng.standard_normal((15, n)) * rng.uniform(0.1, 10.0)
+        X = rng.standard_normal((8, n)) * rng.uniform(1e-3, 1e2)
         out = np.full((8, 15), np.nan)
         fast(addr, A, X, out, m)
         assert np.array_equal(out[:, :m], np.array([A[:m].dot(x) for x in X]))
         assert np.isnan(out[:, m:]).all()
-
-
-def test_numpy_dgemv_in_compiled_code_sums_as_ndarray_dot():
-    gemv = _jit.numpy_dgemv()
-    if not _jit.enabled() or gemv is None:
-        pytest.skip("numba or numpy's OpenBLAS not available")
-
-    def rows(g, A, X, out):
-        m, n = A.shape
-        for r in range(X.shape[0]):
-            g(102, 112, n, m, 1.0, A.ctypes, n, X[r].ctypes, 1, 0.0, out[r].ctypes, 1)
-
-    fast = _jit.compiled(rows)
-    rng = np.random.default_rng(0)
-    for _ in range(50):
-        A = rng.standard_normal((15, 15)) * rng.uniform(0.1, 10.0)
-        X = rng.standard_normal((8, 15)) * rng.uniform(1e-3, 1e2)
-        out = np.empty((8, 15))
-        fast(gemv, A, X, out)
-        assert np.array_equal(out, np.array([A.dot(x) for x in X]))

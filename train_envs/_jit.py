@@ -109,8 +109,9 @@ _DGEMV: list[Any] = []
 
 
 def numpy_dgemv() -> Any:
-    """The ``cblas_dgemv`` of the OpenBLAS numpy itself is linked to, as a ctypes function
-    (compiled code can call it), or None where numpy's wheel library is not found.
+    """The ``cblas_dgemv`` of the OpenBLAS numpy itself is linked to, as a ctypes function,
+    or None where numpy's wheel library is not found; compiled loops call it at its
+    address (:func:`numpy_dgemv_address`, :data:`DGEMV`).
 
     A compiled matrix-vector product through it sums in the order of ``ndarray.dot``
     (the same library, kernel and arguments): ``A x`` of a C-contiguous ``A`` (m, n) is
