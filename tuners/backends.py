@@ -409,7 +409,7 @@ def run_chunk(tasks: Sequence[Any]) -> list[dict[str, Any] | PointError]:
 class LockstepBackend(ProcessBackend):
     """The process pool, each worker evaluating its share of a batch in one call.
 
-    Tasks with the same ``batch_key()`` (env tasks of an env whose controller batches:
+    Tasks with the same ``batch_key()`` (env tasks of an env with a lockstep evaluation:
     :func:`train_envs.envs.batch.supports_batch`) are split into one contiguous chunk
     per worker, run by :func:`run_chunk`; other tasks (``batch_key`` None or absent,
     such as pymoo problems) are submitted one by one as with ``"processes"``. Failure
@@ -553,14 +553,15 @@ def make_backend(
 
 
 def default_backend(problem: TaskProblem) -> str:
-    """``"lockstep"`` for an env problem whose controller batches
-    (:func:`train_envs.envs.batch.supports_batch`: PID, Fuzzy-PID, DMC), else
-    ``"processes"`` (other envs, pymoo problems)."""
+    """``"lockstep"`` for an env problem whose controller has an array law
+    (:func:`train_envs.envs.batch.supports_batch` with ``array_law``: PID, Fuzzy-PID,
+    DMC), else ``"processes"`` (the other envs, whose members would run one by one in
+    lockstep at the same cost; pymoo problems)."""
     env_id = getattr(problem, "env_id", None)
     if isinstance(env_id, str) and hasattr(problem, "config"):
         from train_envs.envs.batch import supports_batch
 
-        if supports_batch(env_id, problem.config):
+        if supports_batch(env_id, problem.config, array_law=True):
             return "lockstep"
     return "processes"
 

@@ -17,7 +17,12 @@ from train_envs.envs.registration import VECTOR_ENTRY_POINT
 from train_envs.envs.vector_env import TrainTuningVectorEnv
 
 CFG = {"max_episode_steps": 6}
-IDS = ["TrainEnvs/Urban004-v0", "TrainEnvs/Stopping001PID-v0", "TrainEnvs/Urban004FuzzyPID-v0"]
+IDS = [
+    "TrainEnvs/Urban004-v0",
+    "TrainEnvs/Stopping001PID-v0",
+    "TrainEnvs/Urban004FuzzyPID-v0",
+    "TrainEnvs/Stopping001-v0",  # (no array law: each member on its own RSMPC)
+]
 
 
 def _make(env_id: str, n: int) -> VectorEnv:
@@ -95,11 +100,34 @@ def test_vector_env_spaces_seeding_and_reset_mask():
         venv.reset(seed=[1, 2, 3])
 
 
-def test_ids_without_a_lockstep_controller_have_no_vector_entry_point():
-    assert gym.spec(IDS[0]).vector_entry_point == VECTOR_ENTRY_POINT
-    assert gym.spec("TrainEnvs/Stopping001-v0").vector_entry_point is None
+def test_the_ids_of_a_lockstep_scenario_have_the_vector_entry_point():
+    from train_envs.envs.registration import ENV_SPECS
+
+    for env_id in ENV_SPECS:
+        env = gym.make(env_id, config=CFG).unwrapped
+        env.reset(seed=0)
+        single = env.loop.plant.n == 1 and env.scenario.control_context().n_inputs == 1
+        lockstep = single and env._sections is None
+        assert (gym.spec(env_id).vector_entry_point == VECTOR_ENTRY_POINT) == lockstep, env_id
+        env.close()
     with pytest.raises(ValueError, match="num_envs"):
         TrainTuningVectorEnv(0, config=CFG, base_config={"scenario": "paper004_urban"})
+
+
+@pytest.mark.parametrize(
+    ("base", "match"),
+    [
+        ({"scenario": "paper000_single_section", "controller": "sempc"}, "several cars"),
+        (
+            {"real_line": {"track": "CN_Songjiazhuang_Yizhuang", "train": "CN_Beijing_Subway"},
+             "controller": "mpc"},
+            "section per episode",
+        ),
+    ],
+)  # fmt: skip
+def test_the_vector_env_refuses_what_the_lockstep_runner_cannot_batch(base, match):
+    with pytest.raises(ValueError, match=match):
+        TrainTuningVectorEnv(2, config=CFG, base_config=base)
 
 
 def test_ppo_trains_on_the_vector_env_through_the_sb3_adapter():

@@ -27,6 +27,7 @@ from train_envs.plants.batch import BATCH_ACCEL, BATCH_CAR_STEP, BatchSingleCar
 from train_envs.scenarios import DisturbanceSpec, build_plant, get_scenario
 from train_envs.simulation import ClosedLoop, run_to_end
 from train_envs.simulation.batch import STEP_END, SUPERVISE, BatchLoop
+from train_envs.simulation.members import MemberControllers
 
 STEPS = 150  # control steps of the closed-loop comparisons
 
@@ -167,6 +168,10 @@ def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list, compil
         ("TrainEnvs/Urban004-v0", [{}, {"k_h": 0.3, "k_e": 200.0}, {"alpha_min": 0.9}]),
         ("TrainEnvs/Stopping001PID-v0", [{"kp": 3.0}, {}]),
         ("TrainEnvs/Urban004FuzzyPID-v0", [{"dki": 0.5}, {"kp0": 0.02}]),
+        # each member on its own controller (no array law); Yizhuang draws a section
+        # per seed: one lockstep group per section
+        ("TrainEnvs/Stopping001-v0", [{"beta": 8.0}, {}, {"r_du": 0.5}]),
+        ("TrainEnvs/Yizhuang-v0", [{}, {"q_v": 1e3, "r_du": 0.01}]),
     ],
 )
 def test_evaluate_env_params_batch_equals_the_single_evaluations(env_id, params_list):
@@ -220,3 +225,36 @@ def test_supervision_twin_equals_its_reference_through_brake_starts_and_holds():
             assert np.array_equal(a, b)
         assert all(np.array_equal(a, b) for a, b in zip(*state.values(), strict=True))
     assert state[True][1].sum() > 0 and state[True][0].any()
+
+
+#: controllers without an array law, each member on its own (single-car scenarios)
+MEMBER_CASES = [
+    ("mpc", "paper001_stopping", [{}, {"q_s": 2.0, "r_du": 0.05}, {"q_v": 500.0}]),
+    ("rsmpc", "paper001_stopping", [{}, {"beta": 8.0, "r_du": 0.5}]),
+    ("rmpc", "paper001_stopping", [{"r_du": 1.0}, {}]),
+    ("mpc", "yizhuang", [{}, {"q_v": 1e3, "r_du": 0.01}]),
+    ("afsmc", "paper004_urban", [{}, {}]),
+]
+
+
+@pytest.mark.parametrize(("ctrl_name", "scenario", "params_list"), MEMBER_CASES)
+def test_member_controllers_in_the_batch_loop_equal_closed_loops(ctrl_name, scenario, params_list):
+    sc = get_scenario(scenario)
+    seeds = [0, 5, 0][: len(params_list)]
+    singles = [
+        _single_arrays(sc, c, s)
+        for c, s in zip(_members(ctrl_name, sc, params_list), seeds, strict=True)
+    ]
+    ctrls = _members(ctrl_name, sc, params_list)
+    for c in ctrls:
+        c.reset(sc.control_context())
+    plants = [build_plant(sc, np.random.default_rng(s)) for s in seeds]
+    loop = BatchLoop(sc, plants, MemberControllers(ctrls), max_steps=STEPS)
+    loop.run()
+    for b, (arrays, metrics) in enumerate(singles):
+        got = loop.arrays(b)
+        assert set(got) == set(arrays)
+        for name, col in arrays.items():
+            if name != "solve_time_s":  # (a wall-clock time)
+                assert np.array_equal(got[name], col, equal_nan=True), (b, name)
+        assert loop.metrics(b) == metrics

@@ -7,7 +7,9 @@ batched path. There, every (parameter vector, seed) pair is one member of a
 :class:`~train_envs.simulation.batch.BatchLoop`: the env's reset for the seed gives the
 scenario and the episode seed (its plant draw), the env's controller validates and
 completes the parameters, and the members run together (the batched controllers of
-:data:`BATCHED`). Elsewhere it runs the single evaluations one after the other.
+:data:`BATCHED`, or each member on its own controller: :func:`lockstep_builder`). Where
+the batched runner does not apply (several cars or inputs, ``end_on_violation``) it runs
+the single evaluations one after the other.
 Tolerance and design: ``docs/design/lockstep.md``.
 """
 
@@ -32,8 +34,9 @@ from train_envs.plants.batch import batchable
 from train_envs.scenarios import build_plant
 from train_envs.simulation import episode_row, metrics_table
 from train_envs.simulation.batch import BatchLoop
+from train_envs.simulation.members import MemberControllers
 
-__all__ = ["BATCHED", "evaluate_env_params_batch", "supports_batch"]
+__all__ = ["BATCHED", "evaluate_env_params_batch", "lockstep_builder", "supports_batch"]
 
 
 def _dmc(env: Any, params: Sequence[Mapping[str, float]], pool: Callable[[int], Controller]):
@@ -48,13 +51,29 @@ def _fuzzy_pid(env: Any, params: Sequence[Mapping[str, float]], pool: Any):
     return BatchFuzzyPID(env.controller, params)
 
 
+def _members(env: Any, params: Sequence[Mapping[str, float]], pool: Callable[[int], Controller]):
+    return MemberControllers([pool(b) for b in range(len(params))])
+
+
 #: controller class -> (whether a reset instance batches, the batched controller's builder
-#: ``(env, member params, QP pool) -> BatchController``)
+#: ``(env, member params, QP pool) -> BatchController``); every other single-input
+#: controller (and a configuration these laws do not cover) runs member by member on
+#: its own single form (:func:`lockstep_builder`)
 BATCHED: dict[type, tuple[Callable[[Any], bool], Callable[..., Any]]] = {
     DMCController: (batchable_dmc, _dmc),
     PIDController: (lambda c: True, _pid),
     FuzzyPIDController: (lambda c: rules_batchable(c.rules) and c._single, _fuzzy_pid),
 }
+
+
+def lockstep_builder(ctrl: Controller) -> Callable[..., Any]:
+    """The batched controller's builder ``(env, member params, pool) -> BatchController``
+    for a reset ``ctrl``: its array law (:data:`BATCHED`) where it has one for this
+    configuration, else :class:`~train_envs.simulation.members.MemberControllers` over
+    the pool's controllers (``pool(b)``: member ``b``'s own controller, reset with its
+    parameters)."""
+    entry = BATCHED.get(type(ctrl))
+    return entry[1] if entry is not None and entry[0](ctrl) else _members
 
 #: per env key: the controllers members solve their QPs on (built on first use)
 _POOLS: dict[tuple[str, str], list[Controller]] = {}
@@ -62,20 +81,23 @@ _POOLS: dict[tuple[str, str], list[Controller]] = {}
 
 def _supported(env: gym.Env) -> bool:
     base = env.unwrapped
-    entry = BATCHED.get(type(base.controller))
     loop = base.loop
     return (
-        entry is not None
-        and loop.plant is not None
-        and entry[0](base.controller)
+        loop.plant is not None
         and batchable(loop.plant)
         and base.scenario.control_context().n_inputs == 1
         and not loop.supervision.end_on_violation
     )
 
 
-def supports_batch(env_id: str, config: Mapping[str, Any] | None = None) -> bool:
-    """Whether ``env_id`` with ``config`` has a batched (lockstep) evaluation."""
+def supports_batch(
+    env_id: str, config: Mapping[str, Any] | None = None, *, array_law: bool = False
+) -> bool:
+    """Whether ``env_id`` with ``config`` has a batched (lockstep) evaluation: a
+    single-car, single-input scenario without ``end_on_violation``. ``array_law=True``
+    asks in addition for a controller with an array law (:data:`BATCHED`), where the
+    members share the control step too; the others run member by member on their single
+    forms, at about the single evaluations' cost (``docs/design/lockstep.md``)."""
     key = EnvCache.key(env_id, config)
     if key is None:
         return False
@@ -83,7 +105,9 @@ def supports_batch(env_id: str, config: Mapping[str, Any] | None = None) -> bool
         with _env(env_id, config, True) as env:
             if env.unwrapped.loop.plant is None:
                 env.reset(seed=0)
-            return _supported(env)
+            if not _supported(env):
+                return False
+            return not array_law or lockstep_builder(env.unwrapped.controller) is not _members
     except gym.error.Error:
         return False
 
@@ -95,6 +119,24 @@ def _pool(key: tuple[str, str], base: Any) -> Callable[[int], Controller]:
         while len(ctrls) <= b:
             ctrls.append(base._make_controller())
         return ctrls[b]
+
+    return get
+
+
+def _fresh(base: Any, values: Sequence[Mapping[str, float] | None]) -> Callable[[int], Controller]:
+    """Member ``b``'s controller as a single evaluation on a fresh env runs it: made,
+    holding the base parameters, reset on the scenario's context, then given its
+    parameters (``values[b]``; None: the defaults, no call)."""
+    ctx = base.loop.ctx
+    base_params = base.action_type.base_params
+
+    def get(b: int) -> Controller:
+        ctrl = base._make_controller()
+        ctrl.set_params(**base_params)
+        ctrl.reset(ctx)
+        if values[b] is not None:
+            ctrl.set_params(**values[b])
+        return ctrl
 
     return get
 
@@ -147,22 +189,27 @@ def evaluate_env_params_batch(
         ids = {"env": env_id, "driver": "tuner"}
         # every (parameter vector, seed) pair is a member; members of one scenario
         # (all of them, unless the env draws a scenario per seed) run in lockstep
-        groups: dict[int, tuple[Any, list[tuple[int, int, int]], list[dict[str, float]]]] = {}
+        groups: dict[int, tuple[Any, list[tuple[int, int, int]], list[dict[str, float]], list]] = {}
         for j, seed in enumerate(seeds):
             env.reset(seed=seed)
             sc = base.scenario
             ep_seed = base.loop.seed
-            group = groups.setdefault(id(sc), (sc, [], []))
+            group = groups.setdefault(id(sc), (sc, [], [], []))
             for i, p in enumerate(params_list):
-                base.set_native_params(space.complete(p, defaults))
+                values = space.complete(p, defaults)
+                base.set_native_params(values)
                 group[1].append((i, j, ep_seed))
                 group[2].append(base.controller.get_params())
+                # (what EnvEpisodes.start sets: nothing at the defaults)
+                group[3].append(values if values != {n: defaults[n] for n in values} else None)
         rows: list[list[dict[str, Any] | None]] = [[None] * len(seeds) for _ in params_list]
-        for sc, members, full in groups.values():
+        for sc, members, full, values in groups.values():
             if base.scenario is not sc:  # the controller's structure for sc
                 env.reset(seed=seeds[members[0][1]])
             plants = _plants(sc, [m[2] for m in members])
-            ctrl = BATCHED[type(base.controller)][1](base, full, _pool(key, base))
+            build = lockstep_builder(base.controller)
+            pool = _fresh(base, values) if build is _members else _pool(key, base)
+            ctrl = build(base, full, pool)
             loop = BatchLoop(sc, plants, ctrl, base.loop.supervision, max_steps)
             loop.run()
             for b, (i, j, _) in enumerate(members):

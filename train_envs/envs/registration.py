@@ -10,10 +10,13 @@ prefix so the child imports the package and registers the ids itself::
 
     gymnasium.make("train_envs:TrainEnvs/Stopping001PID-v0")
 
-The ids whose controller has a lockstep twin (PID, Fuzzy-PID, DMC) also register the
-native vector env (:class:`~train_envs.envs.vector_env.TrainTuningVectorEnv`) as their
-``vector_entry_point``: ``gymnasium.make_vec(id, num_envs=B,
-vectorization_mode="vector_entry_point")``.
+The ids of one fixed single-car, single-input scenario (papers 001 and 004) also
+register the native vector env (:class:`~train_envs.envs.vector_env.TrainTuningVectorEnv`)
+as their ``vector_entry_point``: ``gymnasium.make_vec(id, num_envs=B,
+vectorization_mode="vector_entry_point")``. Their members step in one lockstep runner,
+the controller's array law where it has one (PID, Fuzzy-PID, DMC), else each member's own
+controller. The real-line ids draw a section per episode, which the members of one
+runner cannot; the multi-car ids have no batched plant.
 """
 
 from __future__ import annotations
@@ -23,10 +26,10 @@ from typing import Any
 import gymnasium as gym
 
 ENTRY_POINT = "train_envs.envs.train_env:TrainTuningEnv"
-#: the native vector env of the ids whose controller has a lockstep twin
+#: the native vector env of the ids on a lockstep scenario
 VECTOR_ENTRY_POINT = "train_envs.envs.vector_env:TrainTuningVectorEnv"
-#: controllers with a lockstep twin (:data:`train_envs.envs.batch.BATCHED`)
-BATCHED_CONTROLLERS = ("dmc", "pid", "fuzzy_pid")
+#: the fixed single-car, single-input scenarios of the ids (the lockstep runner's)
+LOCKSTEP_SCENARIOS = ("paper001_stopping", "paper004_urban")
 
 #: id -> (default config, one-line description)
 ENV_SPECS: dict[str, tuple[dict[str, Any], str]] = {
@@ -110,7 +113,7 @@ def register_envs() -> list[str]:
     for env_id, (config, _doc) in ENV_SPECS.items():
         if env_id in gym.registry or config["controller"] not in CONTROLLERS:
             continue
-        vector = VECTOR_ENTRY_POINT if config["controller"] in BATCHED_CONTROLLERS else None
+        vector = VECTOR_ENTRY_POINT if config.get("scenario") in LOCKSTEP_SCENARIOS else None
         gym.register(
             id=env_id,
             entry_point=ENTRY_POINT,

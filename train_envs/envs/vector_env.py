@@ -30,6 +30,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from train_envs.envs.train_env import TrainTuningEnv
+from train_envs.plants.batch import batchable
 from train_envs.simulation.batch import BatchLoop
 
 __all__ = ["MemberLoop", "TrainTuningVectorEnv"]
@@ -129,7 +130,7 @@ class TrainTuningVectorEnv(VectorEnv):
         base_config: Mapping[str, Any] | None = None,
         **kwargs: Any,
     ) -> None:
-        from train_envs.envs.batch import BATCHED
+        from train_envs.envs.batch import lockstep_builder
 
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
@@ -142,13 +143,18 @@ class TrainTuningVectorEnv(VectorEnv):
         self.envs = [TrainTuningEnv(config, base_config=base_config) for _ in range(num_envs)]
         e0 = self.envs[0]
         e0.reset(seed=0)
-        entry = BATCHED.get(type(e0.controller))
-        if entry is None or not entry[0](e0.controller) or e0._sections is not None:
+        if e0._sections is not None:
             raise ValueError(
-                f"controller {e0.settings.controller.name!r} on this scenario has no lockstep "
-                "twin: use gymnasium.make_vec(..., vectorization_mode='sync')"
+                "this env draws a station-to-station section per episode, and the members "
+                "of a lockstep vector env share one scenario: use "
+                "gymnasium.make_vec(..., vectorization_mode='sync')"
             )
-        self._builder = entry[1]
+        if not batchable(e0.loop.plant) or e0.scenario.control_context().n_inputs != 1:
+            raise ValueError(
+                f"scenario {e0.scenario.name!r} has several cars or inputs, which the lockstep "
+                "runner does not batch: use gymnasium.make_vec(..., vectorization_mode='sync')"
+            )
+        self._builder = lockstep_builder(e0.controller)
         e0._np_random = None  # (drawn anew, as a fresh env's, on a reset without a seed)
         self._real_loops = [e.loop for e in self.envs]
         self.single_action_space = e0.action_space

@@ -3,15 +3,16 @@
 :class:`BatchLoop` runs B closed loops of one single-car scenario (each member its own
 plant, seed and controller parameters) control step by control step: the plants step
 together (:class:`~train_envs.plants.batch.BatchSingleCar`), a batched controller
-(:class:`BatchController`) computes every active member's command with array
-operations, the ATP supervises each member (:mod:`.supervision`), and the rows are
-recorded into one (steps × members) array per column. A member whose episode is over
-(the runner's termination and truncation, or the step cap) stops stepping; the others
-go on. Everything after the controller (the ATP and the limit columns, :data:`SUPERVISE`;
-the record row; the plant step; the end-of-step checks, :func:`done_arrays`) is one call
-of the registered twin :data:`STEP_END` (numpy reference, compiled member loop).
-:meth:`BatchLoop.arrays` gives each member the columns of
-:meth:`ClosedLoop.arrays`, :meth:`BatchLoop.metrics` its
+(:class:`BatchController`) computes every active member's command with array operations
+(a controller without an array law runs member by member on its single form:
+:class:`~.members.MemberControllers`), the ATP supervises each member
+(:mod:`.supervision`), and the rows are recorded into one (steps × members) array per
+column. A member whose episode is over (the runner's termination and truncation, or the
+step cap) stops stepping; the others go on. Everything after the controller (the ATP and
+the limit columns, :data:`SUPERVISE`; the record row; the plant step; the end-of-step
+checks, :func:`done_arrays`) is one call of the registered twin :data:`STEP_END` (numpy
+reference, compiled member loop). :meth:`BatchLoop.arrays` gives each member the columns
+of :meth:`ClosedLoop.arrays`, :meth:`BatchLoop.metrics` its
 :func:`~train_envs.metrics.episode_metrics`. The runner adds no arithmetic of its own:
 every value is the single runner's, member by member (tested).
 """
@@ -270,7 +271,10 @@ _jit.register(
 
 
 class BatchController(Protocol):
-    """What :class:`BatchLoop` needs of a batched controller."""
+    """What :class:`BatchLoop` needs of a batched controller. One whose
+    ``needs_plant_state`` is true also gets the members' accelerations and actual
+    forces, ``compute(ix, t, s, v, u_prev_N, a, force_N)``
+    (:class:`~.members.MemberControllers`)."""
 
     def reset(self, ix: np.ndarray | None = None) -> None: ...
 
@@ -306,6 +310,8 @@ class BatchLoop:
         self.scenario = sc = scenario
         self.plant = BatchSingleCar(plants)
         self.controller = controller
+        #: whether the controller's compute takes the accelerations and actual forces
+        self._plant_state = bool(getattr(controller, "needs_plant_state", False))
         self.B = B = len(plants)
         self.dt = sc.dt_ctrl_s
         self.n_max = int(math.ceil(sc.t_max_s / self.dt)) + 2
@@ -396,7 +402,10 @@ class BatchLoop:
         # the record's gradient: the plant's own reading where it is the same table
         grad = g_all[sel] if p.table is self._grad else self._grad(s)
         u_N = p.force[ix]
-        u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix])
+        if self._plant_state:  # (single controllers: the observation's a and F too)
+            u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix], a, u_N)
+        else:
+            u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix])
         u = np.asarray(u, dtype=float)
         v_ref, s_ref = self._reference(t, s)
         keys, icols = self._columns(tuple(info))
