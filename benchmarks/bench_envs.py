@@ -21,8 +21,9 @@ random / constant; each round runs ``--steps`` env steps (episodes restart as ne
 reset time included).
 
 ``--osqp-tail [--steps 300]``: per id, the solve times of every QP solve that ran OSQP
-(``MPCSolution.solve_time_s``: OSQP plus the exact finish; the RSMPC's candidates one
-by one) at the constant default action and under random actions: the 99th percentile
+or the exact finish first (``MPCSolution.solve_time_s``: OSQP plus the exact finish;
+the RSMPC's candidates one by one) at the constant default action and under random
+actions: how many of them the exact finish settled without OSQP, the 99th percentile
 and the maximum, how many took more than 2 ms, the 99th percentile of the call's
 thread CPU time, the ADMM iterations (99th percentile, maximum, solves at the
 iteration cap: figures that do not depend on the machine's load), the solves finished
@@ -183,8 +184,9 @@ def side_by_side(ids: list[str], steps: int, rounds: int) -> None:
 def osqp_tail(ids: list[str], steps: int) -> None:
     """OSQP solve-time tail per id at constant and random actions, per QP solve.
 
-    Every :meth:`LinearMPC.solve` that ran OSQP counts (the RSMPC's candidates one by
-    one): its solve time (OSQP plus the exact finish, wall clock, so it grows with the
+    Every :meth:`LinearMPC.solve` that ran OSQP or the exact finish first counts (the
+    RSMPC's candidates one by one; "exact first": settled by the finish with no ADMM
+    iteration): its solve time (OSQP plus the exact finish, wall clock, so it grows with the
     machine's load) and the thread CPU time of the whole call (less sensitive to the
     load), the ADMM iterations (independent of the load): their 99th percentile and
     maximum, the solves at OSQP's iteration cap (``max_iter``; a solve that needed the
@@ -197,11 +199,11 @@ def osqp_tail(ids: list[str], steps: int) -> None:
 
     max_iter = int(osqp_settings_with(None)["max_iter"])
     print(
-        f"| env id | action | QP solves with OSQP | p99 [ms] | max [ms] | > 2 ms "
+        f"| env id | action | QP solves | exact first | p99 [ms] | max [ms] | > 2 ms "
         f"| CPU p99 [ms] | iterations p99 | iterations max | at the cap | finished exactly "
         f"| OSQP / finish median [ms] | fallbacks |  ({steps} steps)"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     rows: list[tuple[float, float, float, float, float]] = []
     finish = [0.0, 0.0]  # time of the last finish, count of the finishes
     solve, exact = LinearMPC.solve, getattr(recovery._RecoveryMixin, "_exact", None)
@@ -244,7 +246,8 @@ def osqp_tail(ids: list[str], steps: int) -> None:
                 c99 = float(np.percentile(cpu, 99)) if t.size else 0.0
                 it99 = float(np.percentile(it, 99)) if it.size else 0.0
                 print(
-                    f"| {env_id} | {name} | {t.size} | {p99:.2f} | {t.max(initial=0.0):.2f} | "
+                    f"| {env_id} | {name} | {t.size} | {int(np.sum(it == 0))} | {p99:.2f} | "
+                    f"{t.max(initial=0.0):.2f} | "
                     f"{int(np.sum(t > 2.0))} | {c99:.2f} | {it99:.0f} | "
                     f"{it.max(initial=0.0):.0f} | {int(np.sum(it >= max_iter))} | "
                     f"{int(fin.sum())} | {t_osqp:.2f} / {t_fin:.2f} | "

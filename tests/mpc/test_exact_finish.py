@@ -163,3 +163,41 @@ def test_sparse_form_active_set_finish_reaches_daqps_optimum():
         A, q = mpc._A_dense, mpc._v[mpc._v_q]
         accepted += mpc._active_set_kkt(x, y, P, A, q, lo, hi, eq) is not None
     assert accepted >= 3  # the others: a wrong guess of the active set, DAQP finishes
+
+
+def test_after_a_capped_solve_the_exact_finish_runs_first_and_gives_the_optimum():
+    """Once OSQP has ended at its cap, the next solves of the same MPC run the exact
+    finish from the warm start first (no ADMM iteration) and reach the optimum of a
+    tightly converged OSQP on the same data; a reset clears that state."""
+    firsts = 0
+    for seed in range(12):
+        case = random_instance(seed)
+        data = case["data"]
+        args = (data["x0"], data["u_prev"], data["y_ref"])
+        opts = {"d": data["d"], "u_ref": data["u_ref"], "x_ref_N": data["x_ref_N"]}
+        mpc = LinearMPC(**dict(case["inst"], osqp_settings={"max_iter": 20}))
+        tight = LinearMPC(
+            **dict(
+                case["inst"],
+                osqp_settings={"max_iter": 400_000, "eps_abs": 1e-10, "eps_rel": 1e-10},
+                rescue=False,
+            )
+        )
+        first = mpc.solve(*args, **opts)
+        if first.iterations < 20:
+            continue  # converged within the cap: OSQP stays first
+        assert mpc._exact_first
+        rng = np.random.default_rng(seed)
+        for _ in range(3):  # the same problem at a moved reference
+            y_ref = data["y_ref"] + 0.05 * rng.standard_normal(data["y_ref"].shape)
+            sol = mpc.solve(args[0], args[1], y_ref, **opts)
+            ref = tight.solve(args[0], args[1], y_ref, **opts)
+            assert ref.status == "solved"
+            if sol.iterations == 0:
+                firsts += 1
+                assert sol.status == "solved (polished)"
+            np.testing.assert_allclose(sol.U, ref.U, atol=1e-5 * (1 + np.max(np.abs(ref.U))))
+            assert sol.cost == pytest.approx(ref.cost, rel=1e-6, abs=1e-6)
+        mpc.reset()
+        assert not mpc._exact_first
+    assert firsts >= 24

@@ -72,7 +72,7 @@ from train_envs.mpc.osqp_backend import (
     _Backend,
     osqp_settings_with,
 )
-from train_envs.mpc.recovery import _RecoveryMixin
+from train_envs.mpc.recovery import _FINISH_EXACT, _POLISHED, _RecoveryMixin
 from train_envs.mpc.solution import MPCSolution, _Predictions
 from train_envs.mpc.unconstrained import _UnconstrainedMixin
 
@@ -140,7 +140,14 @@ class LinearMPC(
             solution as is; ``"none"``: let OSQP start from its last iterate.
         rescue: on a non-converged solve, try the relaxed/polished second attempt
             and the exact active-set refinement before falling back (default True;
-            see :meth:`_rescue`).
+            see :meth:`_rescue`).  With it, in the condensed form (small dense QPs,
+            which DAQP solves in a fraction of OSQP's time), once an OSQP solve has
+            ended at its iteration cap or solved inaccurate (the approach to a stop,
+            where ADMM crawls), the following solves run the exact finish
+            (:meth:`_exact`) from the warm start first, reported as ``"solved
+            (polished)"`` with zero ADMM iterations, and OSQP only when that finish
+            fails its KKT check (its outcome then decides again; :meth:`reset` clears
+            the state).
         form: ``"condensed"``, ``"sparse"`` or ``"auto"`` (default; condensed for
             ``Nc*m <= 20``, measured in ``docs/design/mpc_engine.md``).
         stage_scales: optional per-stage weight multipliers ``{"Q": (Np,), "R": (Nc,),
@@ -263,6 +270,8 @@ class LinearMPC(
         self._backend = _Backend(P0, self._q_init(), A0, self._l, self._u, settings, fast_osqp)
         self._mat_dirty = False  # P, A values changed since OSQP last got them
         self._unc_first = bool(unconstrained_first) and not self._sparse
+        #: the exact finish may run before OSQP (condensed form: a small dense QP)
+        self._finish_first = self._rescue_on and not self._sparse
         self.reset()
 
     def reset(self) -> None:
@@ -290,6 +299,9 @@ class LinearMPC(
         self._plan: np.ndarray | None = None
         self._plan_age = 0
         self._u_last: np.ndarray | None = None
+        #: the last OSQP solve ended at its cap (or solved inaccurate): the exact
+        #: finish runs first (from the warm start) until it fails once
+        self._exact_first = False
 
     def reset_solver(self) -> None:
         """:meth:`reset` plus OSQP's own state: initial ``rho`` and a zero iterate.
@@ -393,12 +405,32 @@ class LinearMPC(
         # OSQP -----------------------------------------------------------------------
         try:
             ws_x, ws_y = self._warm_start()
+            if self._exact_first and ws_x is not None:  # the exact finish first
+                t0 = time.perf_counter()
+                ex = self._exact(ws_x, ws_y)
+                if isinstance(ex, tuple):
+                    x, y, obj_val = ex
+                    return self._finish(
+                        t_start,
+                        x,
+                        y,
+                        v,
+                        th,
+                        upl,
+                        up,
+                        _POLISHED,
+                        _SOLVED,
+                        0,
+                        time.perf_counter() - t0,
+                        obj_val,
+                    )
             self._flush_matrices()
             res = self._backend.step(v[self._v_q], self._l, self._u, ws_x, ws_y)
             if res is None:  # OSQP rejected the vector update
                 return self._fallback(t_start, "solver error", _STATUS_EXCEPTION, up)
             x, y, stats = res
             status_val, status, iters, solve_time, obj_val, _ = stats
+            self._exact_first = self._finish_first and status_val in _FINISH_EXACT
             if status_val != _SOLVED and self._rescue_on:
                 x, y, stats = self._rescue(x, y, stats)
                 status_val, status, iters, solve_time, obj_val, _ = stats

@@ -53,6 +53,8 @@ KKT_TOL = 1e-9
 _DAQP_OPTIMAL = 1
 _DAQP_INFEASIBLE = -1
 _PRIMAL_INFEASIBLE_NAME = "primal infeasible"
+#: the status of a verified KKT point (the exact finish, the refinement, polishing)
+_POLISHED = "solved (polished)"
 
 
 def _symmetric_P(host: Any) -> np.ndarray:
@@ -136,20 +138,20 @@ class _RecoveryMixin:
             ex = self._exact(x, y)
             if isinstance(ex, tuple):
                 t = solve_time + time.perf_counter() - t0
-                return ex[0], ex[1], (_SOLVED, "solved (polished)", iters, t, ex[2], 1)
+                return ex[0], ex[1], (_SOLVED, _POLISHED, iters, t, ex[2], 1)
             if ex == _DAQP_INFEASIBLE:
                 t = solve_time + time.perf_counter() - t0
                 return x, y, (status_val, status, iters, t, stats[4], stats[5])
             ref = self._refine(x, y, _INFEASIBLE_REFINE)
             t = solve_time + time.perf_counter() - t0
             if ref is not None:
-                return ref[0], ref[1], (_SOLVED, "solved (polished)", iters, t, ref[2], 1)
+                return ref[0], ref[1], (_SOLVED, _POLISHED, iters, t, ref[2], 1)
             return x, y, (status_val, status, iters, t, stats[4], stats[5])
         if status_val in _FINISH_EXACT:
             ex = self._exact(x, y)
             t = solve_time + time.perf_counter() - t0
             if isinstance(ex, tuple):
-                return ex[0], ex[1], (_SOLVED, "solved (polished)", iters, t, ex[2], 1)
+                return ex[0], ex[1], (_SOLVED, _POLISHED, iters, t, ex[2], 1)
             if ex == _DAQP_INFEASIBLE:  # a verdict of the exact method: final
                 return x, y, (_PRIMAL_INFEASIBLE[0], _PRIMAL_INFEASIBLE_NAME, iters, t, *stats[4:])
         st = self.osqp_settings
@@ -159,12 +161,12 @@ class _RecoveryMixin:
         it = iters + s2[2]
         if s2[0] == _SOLVED and s2[5] == 1:
             t = solve_time + time.perf_counter() - t0
-            return x2, y2, (_SOLVED, "solved (polished)", it, t, s2[4], 1)
+            return x2, y2, (_SOLVED, _POLISHED, it, t, s2[4], 1)
         ok2 = x2 is not None and math.isfinite(np.dot(x2, x2))
         ref = self._refine(x2, y2) if ok2 else self._refine(x, y)
         t = solve_time + time.perf_counter() - t0
         if ref is not None:
-            return ref[0], ref[1], (_SOLVED, "solved (polished)", it, t, ref[2], 1)
+            return ref[0], ref[1], (_SOLVED, _POLISHED, it, t, ref[2], 1)
         if ok2 and s2[0] == _SOLVED:
             return x2, y2, (_SOLVED_INACCURATE, "solved inaccurate", it, t, s2[4], s2[5])
         return x, y, (status_val, status, it, t, stats[4], stats[5])
