@@ -22,6 +22,7 @@ IDS = [
     "TrainEnvs/Stopping001PID-v0",
     "TrainEnvs/Urban004FuzzyPID-v0",
     "TrainEnvs/Stopping001-v0",  # (no array law: each member on its own RSMPC)
+    "TrainEnvs/Yizhuang-v0",  # (a section per episode: one runner per section drawn)
 ]
 
 
@@ -48,11 +49,25 @@ def _member_info(infos, i):
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_vector_env_steps_as_single_envs_with_next_step_autoreset(env_id):
-    B = 3
-    venv = _make(env_id, B)
+    _steps_as_single_envs(env_id, CFG, 3)
+
+
+def test_vector_env_members_share_and_change_the_runners_of_their_sections():
+    """Four members on two sections of a real line: members share a section's runner,
+    move to the other one when a reset draws it, and step as single envs."""
+    cfg = dict(CFG, real_line={"sections": [[3, 4], [4, 5]]})
+    runners = _steps_as_single_envs("TrainEnvs/Yizhuang-v0", cfg, 4)
+    assert max(runners) == 2 and min(runners) >= 1
+
+
+def _steps_as_single_envs(env_id: str, cfg: dict, B: int) -> list[int]:
+    """Run the vector env against B single envs (same seeds, actions); returns the
+    number of batched runners after each step."""
+    venv = gym.make_vec(env_id, num_envs=B, vectorization_mode="vector_entry_point", config=cfg)
     assert isinstance(venv, TrainTuningVectorEnv)
     assert venv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
-    singles = [gym.make(env_id, config=CFG) for _ in range(B)]
+    singles = [gym.make(env_id, config=cfg) for _ in range(B)]
+    runners = []
     obs, infos = venv.reset(seed=7)
     for i, env in enumerate(singles):
         o, info = env.reset(seed=7 + i)
@@ -77,8 +92,10 @@ def test_vector_env_steps_as_single_envs_with_next_step_autoreset(env_id):
             assert np.array_equal(obs[i], o) and rew[i] == r
             assert (term[i], trunc[i]) == (te, tr)
             _same_info(_member_info(infos, i), info)
+        runners.append(len(venv._loops))
     assert resets == 2 * B
     venv.close()
+    return runners
 
 
 def test_vector_env_spaces_seeding_and_reset_mask():
@@ -107,26 +124,15 @@ def test_the_ids_of_a_lockstep_scenario_have_the_vector_entry_point():
         env = gym.make(env_id, config=CFG).unwrapped
         env.reset(seed=0)
         single = env.loop.plant.n == 1 and env.scenario.control_context().n_inputs == 1
-        lockstep = single and env._sections is None
-        assert (gym.spec(env_id).vector_entry_point == VECTOR_ENTRY_POINT) == lockstep, env_id
+        assert (gym.spec(env_id).vector_entry_point == VECTOR_ENTRY_POINT) == single, env_id
         env.close()
     with pytest.raises(ValueError, match="num_envs"):
         TrainTuningVectorEnv(0, config=CFG, base_config={"scenario": "paper004_urban"})
 
 
-@pytest.mark.parametrize(
-    ("base", "match"),
-    [
-        ({"scenario": "paper000_single_section", "controller": "sempc"}, "several cars"),
-        (
-            {"real_line": {"track": "CN_Songjiazhuang_Yizhuang", "train": "CN_Beijing_Subway"},
-             "controller": "mpc"},
-            "section per episode",
-        ),
-    ],
-)  # fmt: skip
-def test_the_vector_env_refuses_what_the_lockstep_runner_cannot_batch(base, match):
-    with pytest.raises(ValueError, match=match):
+def test_the_vector_env_refuses_what_the_lockstep_runner_cannot_batch():
+    base = {"scenario": "paper000_single_section", "controller": "sempc"}
+    with pytest.raises(ValueError, match="several cars"):
         TrainTuningVectorEnv(2, config=CFG, base_config=base)
 
 

@@ -10,13 +10,13 @@ prefix so the child imports the package and registers the ids itself::
 
     gymnasium.make("train_envs:TrainEnvs/Stopping001PID-v0")
 
-The ids of one fixed single-car, single-input scenario (papers 001 and 004) also
-register the native vector env (:class:`~train_envs.envs.vector_env.TrainTuningVectorEnv`)
-as their ``vector_entry_point``: ``gymnasium.make_vec(id, num_envs=B,
-vectorization_mode="vector_entry_point")``. Their members step in one lockstep runner,
-the controller's array law where it has one (PID, Fuzzy-PID, DMC), else each member's own
-controller. The real-line ids draw a section per episode, which the members of one
-runner cannot; the multi-car ids have no batched plant.
+The single-car, single-input ids (papers 001 and 004, the real lines) also register the
+native vector env (:class:`~train_envs.envs.vector_env.TrainTuningVectorEnv`) as their
+``vector_entry_point``: ``gymnasium.make_vec(id, num_envs=B,
+vectorization_mode="vector_entry_point")``. Their members step in lockstep runners (one
+per real-line section drawn), on the controller's array law where it has one (PID,
+Fuzzy-PID, DMC), else each on its own controller. The multi-car ids have no batched
+plant.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ import gymnasium as gym
 ENTRY_POINT = "train_envs.envs.train_env:TrainTuningEnv"
 #: the native vector env of the ids on a lockstep scenario
 VECTOR_ENTRY_POINT = "train_envs.envs.vector_env:TrainTuningVectorEnv"
-#: the fixed single-car, single-input scenarios of the ids (the lockstep runner's)
+#: the single-car, single-input scenarios of the ids (the lockstep runner's); the
+#: real-line ids' trains are single-point models too
 LOCKSTEP_SCENARIOS = ("paper001_stopping", "paper004_urban")
 
 #: id -> (default config, one-line description)
@@ -113,7 +114,8 @@ def register_envs() -> list[str]:
     for env_id, (config, _doc) in ENV_SPECS.items():
         if env_id in gym.registry or config["controller"] not in CONTROLLERS:
             continue
-        vector = VECTOR_ENTRY_POINT if config.get("scenario") in LOCKSTEP_SCENARIOS else None
+        lockstep = config.get("scenario") in LOCKSTEP_SCENARIOS or "real_line" in config
+        vector = VECTOR_ENTRY_POINT if lockstep else None
         gym.register(
             id=env_id,
             entry_point=ENTRY_POINT,

@@ -9,6 +9,12 @@ observation features and the rewards, which read the member's rows of the batche
 runner through a :class:`MemberLoop` view. So member ``i`` gives what a single env
 gives with the same seed and actions, bit for bit (tested).
 
+An env that draws a station-to-station section per episode (the real-line ids) runs
+one batched runner per section its members are on: member ``b`` lives in the runner of
+its current section (the other runners keep its slot idle), moves when a reset draws
+another section, and a runner without members is dropped. The members' envs share one
+cache of section scenarios, so members on one section share its scenario object.
+
 Autoreset follows Gymnasium 1.x's default, :attr:`AutoresetMode.NEXT_STEP`: the step
 after a member's episode ended resets that member (its action is ignored, reward 0,
 not terminated or truncated, the reset's observation and info). ``reset(seed=s)``
@@ -16,7 +22,7 @@ seeds member ``i`` with ``s + i`` (a list: one seed each), as
 :class:`gymnasium.vector.SyncVectorEnv` does; ``options={"reset_mask": mask}`` resets
 only the members of the mask (the others keep their last observation). Infos are
 merged per key with ``_key`` masks (:meth:`VectorEnv._add_info`). Registered as the
-``vector_entry_point`` of the ids whose controller batches
+``vector_entry_point`` of the single-car, single-input ids
 (:func:`train_envs.envs.registration.register_envs`).
 """
 
@@ -142,13 +148,9 @@ class TrainTuningVectorEnv(VectorEnv):
         self.num_envs = num_envs
         self.envs = [TrainTuningEnv(config, base_config=base_config) for _ in range(num_envs)]
         e0 = self.envs[0]
+        for env in self.envs[1:]:  # one scenario object per section for all members
+            env._section_cache = e0._section_cache
         e0.reset(seed=0)
-        if e0._sections is not None:
-            raise ValueError(
-                "this env draws a station-to-station section per episode, and the members "
-                "of a lockstep vector env share one scenario: use "
-                "gymnasium.make_vec(..., vectorization_mode='sync')"
-            )
         if not batchable(e0.loop.plant) or e0.scenario.control_context().n_inputs != 1:
             raise ValueError(
                 f"scenario {e0.scenario.name!r} has several cars or inputs, which the lockstep "
@@ -161,7 +163,10 @@ class TrainTuningVectorEnv(VectorEnv):
         self.single_observation_space = e0.observation_space
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.loop: BatchLoop | None = None
+        self.loop: BatchLoop | None = None  # (the runner of member 0)
+        #: the batched runner per scenario (id) the members are on, member b's runner
+        self._loops: dict[int, BatchLoop] = {}
+        self._home: list[BatchLoop] = []
         self._views: list[MemberLoop] = []
         self._pending = np.zeros(num_envs, dtype=bool)
         self.config = e0.config
@@ -172,7 +177,7 @@ class TrainTuningVectorEnv(VectorEnv):
         env's reset); returns its first observation."""
         env = self.envs[b]
         view = self._views[b]
-        self.loop.controller.set_params(b, env.controller.get_params())
+        self._home[b].controller.set_params(b, env.controller.get_params())
         env.loop = view
         env.observation_type.bind(env.scenario, view)
         env.reward_type.bind(env.scenario, view)
@@ -184,9 +189,19 @@ class TrainTuningVectorEnv(VectorEnv):
         env = self.envs[b]
         env.loop = self._real_loops[b]
         _, info = env.reset(seed=seed, options=options)
-        if env.scenario is not self.loop.scenario:
-            raise RuntimeError("a member's reset drew another scenario")
-        self.loop.reset_member(b, env.loop.plant)
+        old, sc = self._home[b], env.scenario
+        loop = self._loops.get(id(sc))
+        if loop is None:  # the first member on this section: a runner for it
+            loop = self._runner(sc, [b])
+        loop.reset_member(b, env.loop.plant)
+        if loop is not old:
+            old.done[b] = True  # (its slot there stays idle)
+            old._all_live = False
+            self._home[b] = loop
+            self._views[b] = MemberLoop(loop, b)
+            if all(home is not old for home in self._home):
+                del self._loops[id(old.scenario)]
+        self.loop = self._home[0]
         self._pending[b] = False
         return self._bind(b), info
 
@@ -234,16 +249,37 @@ class TrainTuningVectorEnv(VectorEnv):
         self._obs = obs.copy()
         return obs, infos
 
-    def _build(self) -> None:
-        """A new batched runner over the members' freshly reset plants."""
+    def _runner(self, sc: Any, members: Sequence[int]) -> BatchLoop:
+        """A batched runner of scenario ``sc`` with a slot per member, ``members`` (on
+        ``sc``, freshly reset) active in it and the other slots idle (their plant a copy
+        of the first member's until a member moves in)."""
         envs = self.envs
-        e0 = envs[0]
-        if any(e.scenario is not e0.scenario for e in envs):
-            raise RuntimeError("the members' resets drew different scenarios")
+        first = envs[members[0]]
         params = [e.controller.get_params() for e in envs]
-        ctrl = self._builder(e0, params, lambda b: envs[b].controller)
-        self.loop = BatchLoop(e0.scenario, [e.loop.plant for e in envs], ctrl, e0.loop.supervision)
-        self._views = [MemberLoop(self.loop, b) for b in range(self.num_envs)]
+        ctrl = self._builder(first, params, lambda b: envs[b].controller)
+        on = set(members)
+        plants = [(e if b in on else first).loop.plant for b, e in enumerate(envs)]
+        loop = BatchLoop(sc, plants, ctrl, first.loop.supervision)
+        for b in range(self.num_envs):
+            if b not in on:
+                loop.done[b] = True
+        self._loops[id(sc)] = loop
+        return loop
+
+    def _build(self) -> None:
+        """New batched runners over the members' freshly reset plants, one per scenario
+        drawn."""
+        groups: dict[int, list[int]] = {}
+        for b, env in enumerate(self.envs):
+            groups.setdefault(id(env.scenario), []).append(b)
+        self._loops = {}
+        self._home = [None] * self.num_envs  # type: ignore[list-item]
+        for members in groups.values():
+            loop = self._runner(self.envs[members[0]].scenario, members)
+            for b in members:
+                self._home[b] = loop
+        self.loop = self._home[0]
+        self._views = [MemberLoop(self._home[b], b) for b in range(self.num_envs)]
 
     # ------------------------------------------------------------------ step
     def step(
@@ -257,7 +293,7 @@ class TrainTuningVectorEnv(VectorEnv):
             raise ValueError(
                 f"actions must have shape {self.action_space.shape}, got {actions.shape}"
             )
-        loop, envs = self.loop, self.envs
+        envs, home = self.envs, self._home
         obs = np.zeros(self.observation_space.shape, dtype=self.single_observation_space.dtype)
         rewards = np.zeros(B)
         terms = np.zeros(B, dtype=bool)
@@ -268,14 +304,18 @@ class TrainTuningVectorEnv(VectorEnv):
         params: list[dict[str, float]] = [{}] * B
         for b in np.flatnonzero(run).tolist():
             clipped[b], params[b] = envs[b]._act(actions[b])
-            loop.controller.set_params(b, params[b])
-        k0 = loop.k.copy()
+            home[b].controller.set_params(b, params[b])
+        k0 = [int(home[b].k[b]) for b in range(B)]
         running = run.copy()
+        loops = [(loop, np.array([h is loop for h in home])) for loop in self._loops.values()]
         for _ in range(envs[0]._n_ctrl):
             if not running.any():
                 break
-            loop.step(running)
-            running &= ~loop.done
+            for loop, members in loops:
+                mask = running & members
+                if mask.any():
+                    loop.step(mask)
+                    running &= ~(loop.done & members)
         for b in range(B):
             env = envs[b]
             if not run[b]:  # next-step autoreset
@@ -286,7 +326,7 @@ class TrainTuningVectorEnv(VectorEnv):
             env._clipped_total += clipped[b]
             term, trunc = env._episode_end()
             final = term or trunc
-            costs = env._costs(int(k0[b]), final)
+            costs = env._costs(k0[b], final)
             rewards[b] = env._reward(costs)
             info = env._info(clipped[b], params[b], costs, final)
             obs[b] = env._observe()
