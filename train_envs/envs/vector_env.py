@@ -195,8 +195,7 @@ class TrainTuningVectorEnv(VectorEnv):
             loop = self._runner(sc, [b])
         loop.reset_member(b, env.loop.plant)
         if loop is not old:
-            old.done[b] = True  # (its slot there stays idle)
-            old._all_live = False
+            old.done[b] = True  # (its slot there stays idle: steps are always masked)
             self._home[b] = loop
             self._views[b] = MemberLoop(loop, b)
             if all(home is not old for home in self._home):
@@ -251,8 +250,8 @@ class TrainTuningVectorEnv(VectorEnv):
 
     def _runner(self, sc: Any, members: Sequence[int]) -> BatchLoop:
         """A batched runner of scenario ``sc`` with a slot per member, ``members`` (on
-        ``sc``, freshly reset) active in it and the other slots idle (their plant a copy
-        of the first member's until a member moves in)."""
+        ``sc``, freshly reset) active in it and the other slots idle (holding the first
+        member's plant state until a member moves in)."""
         envs = self.envs
         first = envs[members[0]]
         params = [e.controller.get_params() for e in envs]
