@@ -105,6 +105,17 @@ def _single_arrays(sc, ctrl, seed):
     return loop.arrays(), loop.metrics()
 
 
+def _assert_members_equal(loop: BatchLoop, singles) -> None:
+    """Every member's columns and metrics equal its single closed loop's, bit for bit."""
+    for b, (arrays, metrics) in enumerate(singles):
+        got = loop.arrays(b)
+        assert set(got) == set(arrays)
+        for name, col in arrays.items():
+            if name != "solve_time_s":  # (a wall-clock time)
+                assert np.array_equal(got[name], col, equal_nan=True), (b, name)
+        assert loop.metrics(b) == metrics
+
+
 CASES = [
     ("pid", "paper001_stopping", [{}, {"kp": 2.0, "ki": 0.3, "kd": 0.5}, {"kp": 0.05}]),
     # a time-indexed stop: the PIDs integrate in every step (the derived defaults)
@@ -151,13 +162,7 @@ def test_batch_loop_equals_closed_loops(ctrl_name, scenario, params_list, compil
     loop._end = _jit.implementation(STEP_END, compiled_twin=compiled)
     loop.plant._accel = _jit.implementation(BATCH_ACCEL, compiled_twin=compiled)
     loop.run()
-    for b, (arrays, metrics) in enumerate(singles):
-        got = loop.arrays(b)
-        assert set(got) == set(arrays)
-        for name, col in arrays.items():
-            if name != "solve_time_s":  # (a wall-clock time)
-                assert np.array_equal(got[name], col, equal_nan=True), (b, name)
-        assert loop.metrics(b) == metrics
+    _assert_members_equal(loop, singles)
     if ctrl_name == "dmc" and scenario == "paper004_urban":
         assert qp_steps, "the QP path of a member was not exercised"
 
@@ -251,10 +256,4 @@ def test_member_controllers_in_the_batch_loop_equal_closed_loops(ctrl_name, scen
     plants = [build_plant(sc, np.random.default_rng(s)) for s in seeds]
     loop = BatchLoop(sc, plants, MemberControllers(ctrls), max_steps=STEPS)
     loop.run()
-    for b, (arrays, metrics) in enumerate(singles):
-        got = loop.arrays(b)
-        assert set(got) == set(arrays)
-        for name, col in arrays.items():
-            if name != "solve_time_s":  # (a wall-clock time)
-                assert np.array_equal(got[name], col, equal_nan=True), (b, name)
-        assert loop.metrics(b) == metrics
+    _assert_members_equal(loop, singles)
