@@ -29,7 +29,13 @@ from train_envs.controllers.dmc.controller import DMCController
 from train_envs.controllers.fuzzy_pid import FuzzyPIDController
 from train_envs.controllers.params import ParamSpace
 from train_envs.controllers.pid import PIDController
-from train_envs.envs.evaluation import EnvCache, _env, _env_defaults, evaluate_env_params
+from train_envs.envs.evaluation import (
+    EnvCache,
+    _env,
+    _env_defaults,
+    evaluate_env_params,
+    non_default,
+)
 from train_envs.plants.batch import batchable
 from train_envs.scenarios import build_plant
 from train_envs.simulation import episode_row, metrics_table
@@ -74,6 +80,7 @@ def lockstep_builder(ctrl: Controller) -> Callable[..., Any]:
     parameters)."""
     entry = BATCHED.get(type(ctrl))
     return entry[1] if entry is not None and entry[0](ctrl) else _members
+
 
 #: per env key: the controllers members solve their QPs on (built on first use)
 _POOLS: dict[tuple[str, str], list[Controller]] = {}
@@ -200,8 +207,7 @@ def evaluate_env_params_batch(
                 base.set_native_params(values)
                 group[1].append((i, j, ep_seed))
                 group[2].append(base.controller.get_params())
-                # (what EnvEpisodes.start sets: nothing at the defaults)
-                group[3].append(values if values != {n: defaults[n] for n in values} else None)
+                group[3].append(non_default(values, defaults))  # (as EnvEpisodes.start)
         rows: list[list[dict[str, Any] | None]] = [[None] * len(seeds) for _ in params_list]
         for sc, members, full, values in groups.values():
             if base.scenario is not sc:  # the controller's structure for sc

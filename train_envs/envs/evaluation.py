@@ -195,14 +195,22 @@ class EnvEpisodes(Episodes):
         self.max_steps = int(cap) * int(cfg["decision_interval"]) if cap else None
 
     def start(self, seed: int, params: Mapping[str, float] | None) -> ClosedLoop:
-        values = self.space.complete(params or {}, self.defaults)
+        values = non_default(self.space.complete(params or {}, self.defaults), self.defaults)
         self.env.reset(seed=seed)
         base = self.env.unwrapped
-        if values != {n: self.defaults[n] for n in values}:
+        if values is not None:
             # a reused env rebuilds a controller that ran other parameters
             # (TrainTuningEnv.renew_controller)
             base.set_native_params(values)
         return base.loop
+
+
+def non_default(
+    values: Mapping[str, float], defaults: Mapping[str, float]
+) -> Mapping[str, float] | None:
+    """``values``, or None where every one is its default (an episode then sets no
+    parameters: the env's reset has set the defaults)."""
+    return None if values == {n: defaults[n] for n in values} else values
 
 
 def evaluate_env_params(

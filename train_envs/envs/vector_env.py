@@ -163,13 +163,17 @@ class TrainTuningVectorEnv(VectorEnv):
         self.single_observation_space = e0.observation_space
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.loop: BatchLoop | None = None  # (the runner of member 0)
         #: the batched runner per scenario (id) the members are on, member b's runner
         self._loops: dict[int, BatchLoop] = {}
         self._home: list[BatchLoop] = []
         self._views: list[MemberLoop] = []
         self._pending = np.zeros(num_envs, dtype=bool)
         self.config = e0.config
+
+    @property
+    def loop(self) -> BatchLoop | None:
+        """The batched runner member 0 is on (None before the first reset)."""
+        return self._home[0] if self._home else None
 
     # ------------------------------------------------------------------ reset
     def _bind(self, b: int) -> np.ndarray:
@@ -200,7 +204,6 @@ class TrainTuningVectorEnv(VectorEnv):
             self._views[b] = MemberLoop(loop, b)
             if all(home is not old for home in self._home):
                 del self._loops[id(old.scenario)]
-        self.loop = self._home[0]
         self._pending[b] = False
         return self._bind(b), info
 
@@ -277,7 +280,6 @@ class TrainTuningVectorEnv(VectorEnv):
             loop = self._runner(self.envs[members[0]].scenario, members)
             for b in members:
                 self._home[b] = loop
-        self.loop = self._home[0]
         self._views = [MemberLoop(self._home[b], b) for b in range(self.num_envs)]
 
     # ------------------------------------------------------------------ step

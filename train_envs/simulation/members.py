@@ -52,12 +52,10 @@ class MemberControllers:
         self.controllers[b].set_params(**params)
 
     def reset(self, ix: np.ndarray | None = None) -> None:
-        """Start an episode for members ``ix`` (all by default): each controller reset
-        on the context it was last reset on."""
-        members = range(self.B) if ix is None else np.asarray(ix).tolist()
-        for b in members:
-            ctrl = self.controllers[b]
-            ctrl.reset(ctrl.ctx)
+        """Start an episode for members ``ix``: nothing to do here, the owner has reset
+        each member's controller for its episode (the env's reset in the vector env, a
+        fresh controller per member in the lockstep evaluation), as the single runner's
+        owner does."""
 
     def compute(
         self,
