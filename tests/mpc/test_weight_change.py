@@ -80,6 +80,36 @@ def test_set_weights_equals_cold_build(seed, form):
     np.testing.assert_allclose(a.u0, b.u0, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.parametrize(
+    "name, scen",
+    [
+        ("mpc", "paper001_stopping"),
+        ("sempc", "paper000_single_section"),
+        ("adaptive_mpc", "paper002_cruise"),
+    ],
+)
+def test_replace_weights_gives_the_data_of_set_weights(name, scen):
+    """The controllers' unchecked weight path (``replace_weights``: weights they build
+    from checked parameters, a Riccati solution as ``P``) gives the QP data of the
+    checked ``set_weights`` bit for bit, over random tunable parameters; a wrong shape
+    is still refused."""
+    sc = get_scenario(scen)
+    ctrl = make_controller(name, scenario=sc)
+    ClosedLoop(sc, ctrl).reset(seed=0)
+    mpc = ctrl._mpc
+    specs = ctrl.tunable_params()
+    rng = np.random.default_rng(7)
+    for _ in range(8):
+        units = rng.uniform(-1.0, 1.0, len(specs))
+        ctrl.set_params(**{p.name: p.from_unit(u) for p, u in zip(specs, units, strict=True)})
+        got = _snapshot(mpc)
+        kw = {k: getattr(mpc, "_" + k) for k in ("Q", "R", "S", "P")}
+        mpc.set_weights(**{k: np.array(v) for k, v in kw.items() if v is not None})
+        _equal(got, _snapshot(mpc))
+    with pytest.raises(ValueError, match=r"Q must have shape \(\d+, \d+\)"):
+        mpc.replace_weights(Q=np.eye(mpc.p + 1))
+
+
 @pytest.mark.parametrize("form", ["condensed", "sparse"])
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("changes", [1, 2])

@@ -329,7 +329,8 @@ class AdaptiveCruiseMPC(Controller):
             ):
                 with single_thread_blas():
                     Q, R, S = self._weights()
-                    self._mpc.set_weights(Q=Q, R=R, S=S)
+                    # diagonal weights of the checked parameters: no engine checks again
+                    self._mpc.replace_weights(Q=Q, R=R, S=S)
                 self._weights_key = key
 
     def _wkey(self) -> tuple[float, float, float]:

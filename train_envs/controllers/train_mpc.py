@@ -50,7 +50,7 @@ from train_envs.controllers.models import (
     point_lag_continuous,
     resistance_offset_accel,
 )
-from train_envs.mpc import LinearMPC, augmented_terminal_cost, dare_doubling, zoh
+from train_envs.mpc import LinearMPC, augmented_model, augmented_terminal_cost, dare_doubling, zoh
 from train_envs.mpc.blas import single_thread_blas
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.physics import davis_horner_N, davis_slope
@@ -109,15 +109,23 @@ class _TrainMPCBase(Controller):
     def _apply_weights(self) -> None:
         with single_thread_blas():
             Q, R, P = self._weights()
-            self._mpc.set_weights(Q=Q, R=R, P=P)
+            # Q, R diagonal from the checked parameters, P a Riccati solution: the
+            # engine's checks of public weights are not repeated
+            self._mpc.replace_weights(Q=Q, R=R, P=P)
         self._weights_key = tuple(sorted(self._params.items()))
 
     def _terminal_weight(self, Q: np.ndarray, R: np.ndarray) -> np.ndarray | None:
-        """Augmented-Riccati terminal cost of the stage weights (None without ``terminal``)."""
+        """Augmented-Riccati terminal cost of the stage weights (None without ``terminal``;
+        the augmented model is kept per discretisation)."""
         if not self.terminal:
             return None
         C = self._C
-        _, _, P = augmented_terminal_cost(self._Ad, self._Bd, C.T @ Q @ C, R, gain=False)
+        aug = self.__dict__.get("_aug_model")
+        if aug is None or aug[0] is not self._Ad or aug[1] is not self._Bd:
+            aug = self._aug_model = (self._Ad, self._Bd, augmented_model(self._Ad, self._Bd))
+        _, _, P = augmented_terminal_cost(
+            self._Ad, self._Bd, C.T @ Q @ C, R, gain=False, model=aug[2]
+        )
         return P
 
     def _on_params_changed(self) -> None:
@@ -196,7 +204,8 @@ class PointMassMPC(_TrainMPCBase):
 
     def _weights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         p = self._params
-        Q = np.diag([p["q_s"], p["q_v"]])
+        Q = np.zeros((2, 2))
+        Q[0, 0], Q[1, 1] = p["q_s"], p["q_v"]
         R = np.array([[p["r_du"]]])
         return Q, R, self._terminal_weight(Q, R)
 

@@ -18,6 +18,7 @@ Design notes and measurements: ``docs/design/mpc_engine.md``.
 """
 
 from train_envs.mpc.design import (
+    augmented_model,
     augmented_terminal_cost,
     dare_doubling,
     terminal_cost_dare,
@@ -33,6 +34,7 @@ __all__ = [
     "MPCSolution",
     "UnconstrainedAffine",
     "UnconstrainedGain",
+    "augmented_model",
     "augmented_terminal_cost",
     "dare_doubling",
     "terminal_cost_dare",

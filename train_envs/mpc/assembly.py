@@ -94,8 +94,12 @@ def _psd_sqrt(W: np.ndarray) -> np.ndarray:
 
 
 def _eigh_sqrt(lam: np.ndarray, V: np.ndarray) -> np.ndarray:
-    """The factor of :func:`_psd_sqrt` from ``eigh``'s ``(lam, V)``."""
-    keep = lam > 1e-14 * max(1.0, float(np.max(np.abs(lam), initial=0.0)))
+    """The factor of :func:`_psd_sqrt` from ``eigh``'s ``(lam, V)`` (C-ordered)."""
+    lv = lam.tolist()
+    thr = 1e-14 * max(1.0, max(map(abs, lv), default=0.0))
+    if all(x > thr for x in lv):  # every row kept (a positive definite weight)
+        return np.multiply(np.sqrt(lam)[:, None], V.T, order="C")
+    keep = lam > thr
     return np.sqrt(lam[keep])[:, None] * V[:, keep].T
 
 
@@ -201,8 +205,9 @@ def _stage_weights(blocks: list[tuple[np.ndarray | None, int, np.ndarray]]) -> _
         c += k * dim
     # a row whose value is 0 (a zero stage scale) points at column 0, as the row scan of
     # the dense factor would
-    picked = [j if v != 0.0 else 0 for j, v in zip(cols, vals, strict=True)]
-    cols_all = np.array(picked, dtype=np.intp)
+    if 0.0 in vals:
+        cols = [j if v != 0.0 else 0 for j, v in zip(cols, vals, strict=True)]
+    cols_all = np.array(cols, dtype=np.intp)
     d_all, vals_all = np.array(d, dtype=float), np.array(vals, dtype=float)
     rest = blocks[i0:]
     if len(rest) == 1 and rest[0][0] is None and rest[0][1] == 1:  # one terminal block
@@ -499,13 +504,14 @@ class _AssemblyMixin:
         self._Wz_u = None if sparse else np.ascontiguousarray(self._Tz_c)
         self._Cpinv = S_.Cpinv
         self._Xth, self._Sx = Xth, Sx
+        self._iu_z = np.triu_indices(nz)  # the condensed Hessian's entries in OSQP's P
 
     def _build_weights(self) -> None:
         """The weight-dependent part of :meth:`_build`: ``P``, the linear cost map, the
         cost constant and the condensed Hessian (on the matrices of :meth:`_build_model`)."""
         self._unc_cache = None  # the unconstrained shortcut's data follow the matrices
         self._pin_key: bytes | None | bool = False  # pinned inputs: not looked at yet
-        Np, Nc, nz = self.Np, self.Nc, self._nz
+        Np, Nc = self.Np, self.Nc
         nt = self._ntheta
         sparse = self._sparse
         Ez, Eth = self._Ez, self._Eth
@@ -526,19 +532,26 @@ class _AssemblyMixin:
         if not sparse:
             self._condensed_data()
 
-        con = self._con
-        rho_s = con["rho"][self._soft_c]  # exact-penalty weights of the soft rows
-        self._rho_s = rho_s
-        self._gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
-        ns = self._ns
+        # the soft rows' penalties and the slacks' block of P (kept until they change)
+        rho_all = self._con["rho"]
+        soft = self.__dict__.get("_soft_cache")
+        if soft is None or soft[0] is not rho_all or soft[1] != self._gamma:
+            rho_s = rho_all[self._soft_c]  # exact-penalty weights of the soft rows
+            gamma_s = 0.01 * rho_s if self._gamma is None else np.full(rho_s.size, self._gamma)
+            sl = self._col_slack + np.arange(self._ns)
+            P0 = np.zeros((self._n_var, self._n_var))
+            P0[sl, sl] = 2.0 * gamma_s
+            soft = self._soft_cache = (rho_all, self._gamma, rho_s, gamma_s, P0)
+        rho_s = self._rho_s = soft[2]
+        self._gamma_s = soft[3]
 
         # OSQP cost matrix ---------------------------------------------------------------
         oe, nv = self._col_slack, self._n_var
-        sl = np.arange(ns)
-        Pd = np.zeros((nv, nv))
+        Pd = soft[4].copy()
         if not sparse:
             H, Fq, Lth_c = self._condensed
-            Pd[:nz, :nz] = 2.0 * np.triu(H)
+            iu = self._iu_z
+            Pd[iu] = 2.0 * H[iu]  # 2 triu(H)
             Hw_q = Fq  # q of the non-slack variables
             Lth = Lth_c
         else:
@@ -548,7 +561,6 @@ class _AssemblyMixin:
             Pd[:oe, :oe] = 2.0 * np.triu(0.5 * (Hw + Hw.T))
             Hw_q = 2.0 * EwW @ self._Eth_s
             Lth = wt.factor(self._Eth_s)
-        Pd[oe + sl, oe + sl] = 2.0 * self._gamma_s
         self._P_dense = Pd
 
         # the per-step affine map v = M theta ---------------------------------------------
@@ -711,6 +723,47 @@ class _AssemblyMixin:
                 if self._groups
                 else np.zeros(0)
             )
+        with single_thread_blas():
+            self._build_weights()
+            self._push_matrices()
+
+    def replace_weights(
+        self,
+        *,
+        Q: np.ndarray | None = None,
+        R: np.ndarray | None = None,
+        S: np.ndarray | None = None,
+        P: np.ndarray | None = None,
+    ) -> None:
+        """:meth:`set_weights` of ``Q``, ``R``, ``S``, ``P`` without its checks of the
+        values (the shapes are checked): for a controller that builds them itself from
+        checked parameters -- float arrays, symmetric positive semidefinite and finite
+        (diagonal stage weights, a Riccati solution as ``P``). The matrices are then the
+        same as through :meth:`set_weights` (whose check of an exactly symmetric matrix
+        returns its values); ``None`` keeps a weight."""
+        dimP = self.n if self.terminal == "state" else self.p
+        for name, W, dim, have in (
+            ("Q", Q, self.p, True),
+            ("R", R, self.m, True),
+            ("S", S, self.m, self._S is not None),
+            ("P", P, dimP, self._P is not None),
+        ):
+            if W is None:
+                continue
+            if not have:
+                raise ValueError(
+                    f"{name} was not given at construction; pass {name}=0 there to reserve it"
+                )
+            if W.shape != (dim, dim):
+                raise ValueError(f"{name} must have shape ({dim}, {dim}), got {W.shape}")
+        if Q is not None:
+            self._Q = Q
+        if R is not None:
+            self._R = R
+        if S is not None:
+            self._S = S
+        if P is not None:
+            self._P = P
         with single_thread_blas():
             self._build_weights()
             self._push_matrices()

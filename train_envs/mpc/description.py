@@ -88,7 +88,12 @@ def _weight_eigh(
 
 
 def _is_diagonal(w: np.ndarray) -> bool:
-    """Whether every non-zero entry of the square matrix ``w`` lies on its diagonal."""
+    """Whether every non-zero entry of the square matrix ``w`` lies on its diagonal (a NaN
+    counts as non-zero)."""
+    n = w.shape[0]
+    if n <= 6:  # on Python floats: cheaper than two counts for the usual small weights
+        flat = w.ravel().tolist()
+        return all(flat[k] == 0.0 for k in range(n * n) if k % (n + 1))
     return np.count_nonzero(w) == np.count_nonzero(np.diagonal(w))
 
 

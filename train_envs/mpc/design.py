@@ -114,15 +114,10 @@ def zoh(Ac: np.ndarray, Bc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarr
     return E[:n, :n], E[:n, n:]
 
 
-def augmented_terminal_cost(
-    A: np.ndarray, B: np.ndarray, Qx: np.ndarray, R: np.ndarray, *, gain: bool = True
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-    """Riccati terminal cost of the Δu-augmented model ξ = [x; u(k−1)].
-
-    Returns ``(P_aug, K, P_x)``: the full (n+m)² solution, the LQR gain of
-    ``Δu = −K ξ`` (``None`` with ``gain=False``: a weight change that needs only the
-    cost skips its solve) and the x-block used as the core's state terminal weight.
-    """
+def augmented_model(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Δu-augmented model of ``x⁺ = A x + B u``: ``ξ = [x; u(k−1)]``, input ``Δu``,
+    ``Aa = [[A, B], [0, I]]``, ``Ba = [B; I]`` (what :func:`augmented_terminal_cost`
+    solves on; a controller that solves it for many weights on one model keeps it)."""
     n, m = B.shape
     Aa = np.zeros((n + m, n + m))
     Aa[:n, :n] = A
@@ -131,6 +126,27 @@ def augmented_terminal_cost(
     Ba = np.zeros((n + m, m))
     Ba[:n] = B
     Ba[n:] = np.eye(m)
+    return Aa, Ba
+
+
+def augmented_terminal_cost(
+    A: np.ndarray,
+    B: np.ndarray,
+    Qx: np.ndarray,
+    R: np.ndarray,
+    *,
+    gain: bool = True,
+    model: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """Riccati terminal cost of the Δu-augmented model ξ = [x; u(k−1)].
+
+    Returns ``(P_aug, K, P_x)``: the full (n+m)² solution, the LQR gain of
+    ``Δu = −K ξ`` (``None`` with ``gain=False``: a weight change that needs only the
+    cost skips its solve) and the x-block used as the core's state terminal weight.
+    ``model``: :func:`augmented_model` of ``(A, B)`` if the caller has it.
+    """
+    n, m = B.shape
+    Aa, Ba = augmented_model(A, B) if model is None else model
     Qa = np.zeros((n + m, n + m))
     Qa[:n, :n] = Qx
     try:
