@@ -103,6 +103,19 @@ def test_tabulated_envelope_scalar_list_and_array_agree() -> None:
     assert (float(lo0), float(hi0)) == (-tr.max_brake_N(3.0), tr.max_traction_N(3.0))
 
 
+@pytest.mark.parametrize("name", list_trains())
+def test_every_train_has_one_envelope_scalar_and_array(name) -> None:
+    """The plant saturates with the scalar envelope, the batched plants and the
+    controllers read the array form: the same numbers bit for bit for every catalogue
+    train, on a dense grid of speeds (the acceleration limit ``M' a_max + R(v)`` of the
+    TTOBench trains and paper 004's metro included)."""
+    tr = get_train(name)
+    v = np.concatenate([SPEEDS, np.linspace(0.0, 1.2 * min(tr.max_speed_mps, 120.0), 20001)])
+    lo, hi = tr.envelope_N(v)
+    assert [tr.max_traction_N(x) for x in v.tolist()] == hi.tolist()
+    assert [-tr.max_brake_N(x) for x in v.tolist()] == lo.tolist()
+
+
 def test_tabulated_envelope_is_the_min_of_its_terms() -> None:
     """F = min(F_t, T, P/v, M' a_max + R), B = min(min(F_b, E, P_b/v) + F_fric, M' d_max)."""
     tr = _tabulated()

@@ -42,7 +42,7 @@ import numpy as np
 
 from train_envs import _jit
 from train_envs.plants.lookup import PiecewiseLinear
-from train_envs.plants.physics import davis_N, davis_sq_N
+from train_envs.plants.physics import davis_sq_N
 from train_envs.validation import check_nonnegative, check_positive
 
 #: speed units of the table readers, in m/s per unit
@@ -279,8 +279,8 @@ class ForceEnvelope:
         if av > 0 and P is not None:
             f = min(f, P / av)
         if MA is not None:
-            # M (1 + ρ) a_max + R(|v|), R(0) = 0
-            f = min(f, MA + (davis_N(a, b, c, av) if av != 0 else 0.0))
+            # M (1 + ρ) a_max + R(|v|), R(0) = 0 (the envelope's bracketing, as bounds())
+            f = min(f, MA + (davis_sq_N(a, b, c, av) if av != 0 else 0.0))
         return f
 
     def brake_N(self, v: float) -> float:
