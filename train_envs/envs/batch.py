@@ -7,9 +7,10 @@ batched path. There, every (parameter vector, seed) pair is one member of a
 :class:`~train_envs.simulation.batch.BatchLoop`: the env's reset for the seed gives the
 scenario and the episode seed (its plant draw), the env's controller validates and
 completes the parameters, and the members run together (the batched controllers of
-:data:`BATCHED`, or each member on its own controller: :func:`lockstep_builder`). Where
-the batched runner does not apply (several cars or inputs, ``end_on_violation``) it runs
-the single evaluations one after the other.
+:data:`BATCHED`, or each member on its own controller: :func:`lockstep_builder`, the
+multi-car ids' controllers with one input per car among them). Where the batched runner
+does not apply (a plant it does not batch, ``end_on_violation``) it runs the single
+evaluations one after the other.
 Tolerance and design: ``docs/design/lockstep.md``.
 """
 
@@ -36,10 +37,9 @@ from train_envs.envs.evaluation import (
     evaluate_env_params,
     non_default,
 )
-from train_envs.plants.batch import batchable
 from train_envs.scenarios import build_plant
 from train_envs.simulation import episode_row, metrics_table
-from train_envs.simulation.batch import BatchLoop
+from train_envs.simulation.batch import BatchLoop, batchable_member
 from train_envs.simulation.members import MemberControllers
 
 __all__ = ["BATCHED", "evaluate_env_params_batch", "lockstep_builder", "supports_batch"]
@@ -62,9 +62,9 @@ def _members(env: Any, params: Sequence[Mapping[str, float]], pool: Callable[[in
 
 
 #: controller class -> (whether a reset instance batches, the batched controller's builder
-#: ``(env, member params, QP pool) -> BatchController``); every other single-input
-#: controller (and a configuration these laws do not cover) runs member by member on
-#: its own single form (:func:`lockstep_builder`)
+#: ``(env, member params, QP pool) -> BatchController``); every other controller (and a
+#: configuration these laws do not cover) runs member by member on its own single form
+#: (:func:`lockstep_builder`)
 BATCHED: dict[type, tuple[Callable[[Any], bool], Callable[..., Any]]] = {
     DMCController: (batchable_dmc, _dmc),
     PIDController: (lambda c: True, _pid),
@@ -72,13 +72,14 @@ BATCHED: dict[type, tuple[Callable[[Any], bool], Callable[..., Any]]] = {
 }
 
 
-def lockstep_builder(ctrl: Controller) -> Callable[..., Any]:
+def lockstep_builder(ctrl: Controller, n_cars: int = 1) -> Callable[..., Any]:
     """The batched controller's builder ``(env, member params, pool) -> BatchController``
-    for a reset ``ctrl``: its array law (:data:`BATCHED`) where it has one for this
-    configuration, else :class:`~train_envs.simulation.members.MemberControllers` over
-    the pool's controllers (``pool(b)``: member ``b``'s own controller, reset with its
+    for a reset ``ctrl`` on trains of ``n_cars`` cars: its array law (:data:`BATCHED`,
+    single-car laws) where it has one for this configuration, else
+    :class:`~train_envs.simulation.members.MemberControllers` over the pool's
+    controllers (``pool(b)``: member ``b``'s own controller, reset with its
     parameters)."""
-    entry = BATCHED.get(type(ctrl))
+    entry = BATCHED.get(type(ctrl)) if n_cars == 1 else None
     return entry[1] if entry is not None and entry[0](ctrl) else _members
 
 
@@ -91,8 +92,7 @@ def _supported(env: gym.Env) -> bool:
     loop = base.loop
     return (
         loop.plant is not None
-        and batchable(loop.plant)
-        and base.scenario.control_context().n_inputs == 1
+        and batchable_member(loop.plant)
         and not loop.supervision.end_on_violation
     )
 
@@ -100,11 +100,13 @@ def _supported(env: gym.Env) -> bool:
 def supports_batch(
     env_id: str, config: Mapping[str, Any] | None = None, *, array_law: bool = False
 ) -> bool:
-    """Whether ``env_id`` with ``config`` has a batched (lockstep) evaluation: a
-    single-car, single-input scenario without ``end_on_violation``. ``array_law=True``
-    asks in addition for a controller with an array law (:data:`BATCHED`), where the
-    members share the control step too; the others run member by member on their single
-    forms, at about the single evaluations' cost (``docs/design/lockstep.md``)."""
+    """Whether ``env_id`` with ``config`` has a batched (lockstep) evaluation: a plant
+    the lockstep runner batches (:func:`~train_envs.simulation.batch.batchable_member`:
+    single-car, or multi-car with one whole-train input or one per car) without
+    ``end_on_violation``. ``array_law=True`` asks in addition for a controller with an
+    array law (:data:`BATCHED`), where the members share the control step too; the
+    others run member by member on their single forms, where only the runner and the
+    plant are shared (``docs/design/lockstep.md``)."""
     key = EnvCache.key(env_id, config)
     if key is None:
         return False
@@ -114,9 +116,15 @@ def supports_batch(
                 env.reset(seed=0)
             if not _supported(env):
                 return False
-            return not array_law or lockstep_builder(env.unwrapped.controller) is not _members
+            base = env.unwrapped
+            return not array_law or _builder(base) is not _members
     except gym.error.Error:
         return False
+
+
+def _builder(base: Any) -> Callable[..., Any]:
+    """:func:`lockstep_builder` of the env ``base``'s controller and plant."""
+    return lockstep_builder(base.controller, base.loop.plant.n)
 
 
 def _pool(key: tuple[str, str], base: Any) -> Callable[[int], Controller]:
@@ -213,7 +221,7 @@ def evaluate_env_params_batch(
             if base.scenario is not sc:  # the controller's structure for sc
                 env.reset(seed=seeds[members[0][1]])
             plants = _plants(sc, [m[2] for m in members])
-            build = lockstep_builder(base.controller)
+            build = _builder(base)
             pool = _fresh(base, values) if build is _members else _pool(key, base)
             ctrl = build(base, full, pool)
             loop = BatchLoop(sc, plants, ctrl, base.loop.supervision, max_steps)

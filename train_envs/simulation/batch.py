@@ -1,20 +1,25 @@
 """The lockstep twin of :class:`~train_envs.simulation.loop.ClosedLoop`: B members at once.
 
-:class:`BatchLoop` runs B closed loops of one single-car scenario (each member its own
-plant, seed and controller parameters) control step by control step: the plants step
-together (:class:`~train_envs.plants.batch.BatchSingleCar`), a batched controller
-(:class:`BatchController`) computes every active member's command with array operations
-(a controller without an array law runs member by member on its single form:
-:class:`~.members.MemberControllers`), the ATP supervises each member
+:class:`BatchLoop` runs B closed loops of one scenario (each member its own plant, seed
+and controller parameters) control step by control step: the plants step together
+(:class:`~train_envs.plants.batch.BatchSingleCar` for single cars,
+:class:`~train_envs.plants.batch_multi_car.BatchMultiCar` for multi-car trains), a
+batched controller (:class:`BatchController`) computes every active member's command
+with array operations (a controller without an array law runs member by member on its
+single form: :class:`~.members.MemberControllers`; on multi-car trains with one input
+per car, the commands are per-car rows), the ATP supervises each member
 (:mod:`.supervision`), and the rows are recorded into one (steps × members) array per
 column. A member whose episode is over (the runner's termination and truncation, or the
 step cap) stops stepping; the others go on. Everything after the controller (the ATP and
 the limit columns, :data:`SUPERVISE`; the record row; the plant step; the end-of-step
 checks, :func:`done_arrays`) is one call of the registered twin :data:`STEP_END` (numpy
-reference, compiled member loop). :meth:`BatchLoop.arrays` gives each member the columns
-of :meth:`ClosedLoop.arrays`, :meth:`BatchLoop.metrics` its
-:func:`~train_envs.metrics.episode_metrics`. The runner adds no arithmetic of its own:
-every value is the single runner's, member by member (tested).
+reference, compiled member loop) for single cars, of its numpy form for multi-car trains
+:func:`cars_step_end` (the same supervision, record writer and end-of-episode checks,
+:func:`episode_end`, plus the per-car commands and the coupler columns).
+:meth:`BatchLoop.arrays` gives each member the columns of :meth:`ClosedLoop.arrays`,
+:meth:`BatchLoop.metrics` its :func:`~train_envs.metrics.episode_metrics`. The runner
+adds no arithmetic of its own: every value is the single runner's, member by member
+(tested).
 """
 
 from __future__ import annotations
@@ -33,27 +38,46 @@ from train_envs.plants.batch import (
     CAR_STEP_HELPERS,
     BatchSingleCar,
     batch_car_step,
+    batchable,
     run_batch,
 )
+from train_envs.plants.batch_multi_car import BatchMultiCar, batchable_multi, row_np_sum
 from train_envs.plants.lookup import gradient_table
 from train_envs.plants.multi_car import TrainPlant
 from train_envs.plants.single_car import ST_STOPPED, ST_T, ST_Z0, ST_Z1
 from train_envs.scenarios import Scenario
-from train_envs.simulation.loop import INFO_COLUMNS, scenario_metrics
+from train_envs.simulation.loop import (
+    INFO_COLUMNS,
+    final_row,
+    initial_commands,
+    record_columns,
+    scenario_metrics,
+)
 from train_envs.simulation.supervision import (
     Supervision,
-    overrun_m,
+    coupler_excess_arrays,
     permitted_speed_fn,
     permitted_speed_table,
 )
 
-__all__ = ["STEP_END", "SUPERVISE", "BatchController", "BatchLoop"]
+__all__ = [
+    "STEP_END",
+    "SUPERVISE",
+    "BatchController",
+    "BatchLoop",
+    "batchable_member",
+    "cars_step_end",
+]
 
-_COLUMNS = (
-    "t_s", "s_m", "v_mps", "a_mps2", "v_ref_mps", "s_ref_m", "v_limit_mps", "gradient_permil",
-    "u_cmd_N", "u_N", "work_traction_J", "work_brake_J", "saturated",
-    "atp_brake", "overspeed_mps", "overrun_m",
-)  # fmt: skip
+#: the record columns of a single-car member (the table columns of :data:`STEP_END`)
+_COLUMNS = tuple(record_columns(1))
+
+
+def batchable_member(plant: TrainPlant) -> bool:
+    """Whether ``plant`` can be a member of a :class:`BatchLoop`: a single-car plant on
+    the path :class:`~train_envs.plants.batch.BatchSingleCar` twins, or a multi-car one
+    :class:`~train_envs.plants.batch_multi_car.BatchMultiCar` holds."""
+    return batchable(plant) if plant.n == 1 else batchable_multi(plant)
 
 
 def supervise_arrays(
@@ -110,20 +134,29 @@ def supervise_loop(
 
 def done_arrays(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc) -> None:
     """After the plant step of the members ``ix`` (commands ``u``): the last command
-    and the step count, then the runner's end of episode (over all members, updated):
-    terminated at rest after moving or beyond ``s_stop + overrun`` (stop scenarios),
-    else at the end time; truncated at the end time or the table's last row. ``dc`` =
-    stop (1/0), s_stop + overrun, t_max − 1e-9, the last step; ``ST``: the plant state
-    rows (:mod:`train_envs.plants.single_car` layout). Numpy form (:func:`done_loop`
-    member by member; both run inside :data:`STEP_END`)."""
+    and the step count, then the runner's end of episode (:func:`episode_end` on the
+    plant state rows ``ST``, :mod:`train_envs.plants.single_car` layout). Numpy form
+    (:func:`done_loop` member by member; both run inside :data:`STEP_END`)."""
+    st = ST[ix]
+    episode_end(ix, u, st[:, ST_T], st[:, ST_Z0], st[:, ST_Z1], st[:, ST_STOPPED] != 0.0,
+                u_prev, k, moved, terminated, truncated, done, dc)  # fmt: skip
+
+
+def episode_end(ix, u, t, s, v, stopped, u_prev, k, moved, terminated, truncated, done, dc):
+    """The members ``ix`` after their plant step (commands ``u``; times ``t``, lead-car
+    positions ``s`` and speeds ``v``, held flags ``stopped``, one entry each): the last
+    command and the step count, then the runner's end of episode (over all members,
+    updated): terminated at rest after moving or beyond ``s_stop + overrun`` (stop
+    scenarios), else at the end time; truncated at the end time or the table's last
+    row. ``dc`` = stop (1/0), s_stop + overrun, t_max − 1e-9, the last step (the
+    checks of :meth:`ClosedLoop._check_done`, numpy form)."""
     has_stop, s_end, t_end, k_last = dc.tolist()
     u_prev[ix] = u
     k[ix] += 1
-    t, s, v = ST[ix, ST_T], ST[ix, ST_Z0], ST[ix, ST_Z1]
     mv = moved[ix] | (v > 0.1)
     moved[ix] = mv
     if has_stop:
-        term = ((ST[ix, ST_STOPPED] != 0.0) & mv) | (s > s_end)
+        term = (stopped & mv) | (s > s_end)
     else:
         term = t >= t_end
     trunc = ~term & ((t >= t_end) | (k[ix] >= k_last))
@@ -190,9 +223,7 @@ def step_end_arrays(
     v_ref, s_ref = np.broadcast_to(v_ref, (n,)), np.broadcast_to(s_ref, (n,))
     row = [t, s, v, a, v_ref, s_ref, limit, grad, u, u_N, work[0, ix], work[1, ix], sat[ix],
            brake, over, overrun]  # fmt: skip
-    vals = np.concatenate([np.array(row, dtype=float), info_rows])
-    cols = np.concatenate([np.arange(len(row)), icols])
-    table[k[ix][None, :], cols[:, None], ix[None, :]] = vals
+    record_rows(table, k, ix, row, info_rows, icols)
     uf = np.zeros(ST.shape[0])
     uf[ix] = u
     batch_car_step(ST, BL, heads, active, ksub, order, C, XL, Y0L, SL, offs, has_tab, WD,
@@ -200,6 +231,15 @@ def step_end_arrays(
     done_arrays(ix, u, ST, u_prev, k, moved, terminated, truncated, done, dc)
     live = ~done[ix] if cap < 0 else ~done[ix] & (k[ix] < cap)
     return int(np.count_nonzero(live))
+
+
+def record_rows(table, k, ix, row, info_rows, icols) -> None:
+    """The record row of each member ``ix`` at its step ``k[b]`` of ``table`` (steps ×
+    columns × members): the columns ``row`` (one entry per member each) into the
+    table's first columns, the info rows ``info_rows`` into the columns ``icols``."""
+    vals = np.concatenate([np.array(row, dtype=float), info_rows])
+    cols = np.concatenate([np.arange(len(row)), icols])
+    table[k[ix][None, :], cols[:, None], ix[None, :]] = vals
 
 
 def step_end_loop(
@@ -270,11 +310,63 @@ _jit.register(
 )
 
 
+def cars_step_end(
+    plant, dt, act, ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols, table, k,
+    pos, val, braking, interventions, sp, train, climits, u_prev, moved, terminated, truncated,
+    done, dc, cap,
+) -> int:  # fmt: skip
+    """:func:`step_end_arrays` for multi-car members (``plant``: the
+    :class:`~train_envs.plants.batch_multi_car.BatchMultiCar`, stepped by ``dt`` for the
+    members ``act``): the commands ``u`` are one whole-train input per member, ``(n,)``,
+    or one per car, ``(n, n_cars)``. The operations and their order are
+    :meth:`ClosedLoop.step`'s per member: -1 (nothing changed) where a command is not
+    finite; else the ATP and the limit columns (:func:`supervise_arrays`; a braking
+    member's command replaced by the ATP's brake ``−B(v)`` of the scenario's ``train``,
+    split per car by the member's mass shares), the record row (the columns of
+    :func:`~.loop.record_columns`: the total command, the per-car commands, the coupler
+    extremes and their excess over the limits ``climits`` before the step), the plant
+    step and the end-of-step checks (:func:`episode_end`); returns the number of the
+    members ``ix`` whose episode goes on."""
+    if not np.isfinite(u).all():
+        return -1
+    n = ix.shape[0]
+    limit, over, overrun = np.empty(n), np.empty(n), np.empty(n)
+    brake = np.empty(n, dtype=bool)
+    supervise_arrays(ix, s, v, pos, val, braking, interventions, sp, limit, brake, over, overrun)
+    share = plant.SHARE[ix]
+    per_input = u.ndim == 2
+    if brake.any():  # the ATP overrides the command
+        lo = train.envelope_N(v[brake])[0]
+        u = u.copy()
+        u[brake] = lo[:, None] * share[brake] if per_input else lo
+    # the record: Σ u (the numpy sum of the single runner), the per-car commands (the
+    # whole-train input split by mass shares where there is one input)
+    cars = u if per_input else u[:, None] * share
+    u_cmd = row_np_sum(u) if per_input else u
+    f, q = (x[ix] for x in plant.coupler_extremes())
+    excess = coupler_excess_arrays(f, q, *climits)
+    v_ref, s_ref = np.broadcast_to(v_ref, (n,)), np.broadcast_to(s_ref, (n,))
+    row = [t, s, v, a, v_ref, s_ref, limit, grad, u_cmd, u_N, plant.work_traction_J[ix],
+           plant.work_brake_J[ix], plant.saturated[ix], *cars.T, f, q, brake, over, overrun,
+           excess]  # fmt: skip
+    record_rows(table, k, ix, row, info_rows, icols)
+    uf = np.zeros((plant.B, *u.shape[1:]))
+    uf[ix] = u
+    plant.step(uf, dt, act)
+    episode_end(ix, u, plant.t[ix], plant.s[ix], plant.v[ix], plant._stopped[ix], u_prev, k,
+                moved, terminated, truncated, done, dc)  # fmt: skip
+    live = ~done[ix] if cap < 0 else ~done[ix] & (k[ix] < cap)
+    return int(np.count_nonzero(live))
+
+
 class BatchController(Protocol):
     """What :class:`BatchLoop` needs of a batched controller. One whose
     ``needs_plant_state`` is true also gets the members' accelerations and actual
-    forces, ``compute(ix, t, s, v, u_prev_N, a, force_N)``
-    (:class:`~.members.MemberControllers`)."""
+    forces, ``compute(ix, t, s, v, u_prev_N, a, force_N)``, and on multi-car members
+    their cars' positions, speeds and forces, ``compute(..., cars=(positions, speeds,
+    forces))`` (:class:`~.members.MemberControllers`). ``u_prev_N`` (and the commands
+    returned) hold one entry per member, or a row of ``n_inputs`` where the scenario
+    has several inputs."""
 
     def reset(self, ix: np.ndarray | None = None) -> None: ...
 
@@ -286,8 +378,15 @@ class BatchController(Protocol):
 class BatchLoop:
     """B closed loops of ``scenario`` in lockstep.
 
+    Single-car members step on :class:`~train_envs.plants.batch.BatchSingleCar` with the
+    end of step in the compiled twin :data:`STEP_END`; multi-car members on
+    :class:`~train_envs.plants.batch_multi_car.BatchMultiCar` with its numpy form
+    :func:`cars_step_end` (one whole-train input or one per car). Everything else (the
+    read-outs, the controller call, the references, the info columns, the results) is
+    one code for both.
+
     Args:
-        scenario: a single-car, one-input scenario (every member's).
+        scenario: the scenario of every member (:func:`batchable_member` plants).
         plants: the members' reset plants (:func:`~train_envs.scenarios.build_plant`).
         controller: the batched controller of the B members, reset for the episode.
         supervision: the ATP settings (``end_on_violation`` is not supported here).
@@ -305,10 +404,14 @@ class BatchLoop:
         self.supervision = Supervision() if supervision is None else supervision
         if self.supervision.end_on_violation:
             raise ValueError("BatchLoop: supervision.end_on_violation is not supported")
-        if scenario.control_context().n_inputs != 1:
-            raise ValueError("BatchLoop needs a scenario with one whole-train input")
         self.scenario = sc = scenario
-        self.plant = BatchSingleCar(plants)
+        #: the number of cars and of inputs (commands per member) of every member
+        self.n_cars = plants[0].n if plants else 1
+        self.n_inputs = sc.control_context().n_inputs
+        self._multi = self.n_cars > 1
+        if not self._multi and self.n_inputs != 1:
+            raise ValueError("BatchLoop needs a single-car scenario with one whole-train input")
+        self.plant = BatchMultiCar(plants) if self._multi else BatchSingleCar(plants)
         self.controller = controller
         #: whether the controller's compute takes the accelerations and actual forces
         self._plant_state = bool(getattr(controller, "needs_plant_state", False))
@@ -316,9 +419,10 @@ class BatchLoop:
         self.dt = sc.dt_ctrl_s
         self.n_max = int(math.ceil(sc.t_max_s / self.dt)) + 2
         self.max_steps = max_steps
-        u0 = np.asarray(sc.initial_command(), float).reshape(-1)
-        self._u0 = float(u0.sum())
-        self.u_prev = np.full(B, self._u0)
+        u0 = initial_commands(sc, self.n_inputs)
+        #: the command an episode starts from (a float, or a row of n_inputs)
+        self._u0 = float(u0[0]) if self.n_inputs == 1 else u0
+        self.u_prev = np.full(B, self._u0) if self.n_inputs == 1 else np.tile(u0, (B, 1))
         self.k = np.zeros(B, dtype=np.int64)
         self.done = np.zeros(B, dtype=bool)
         self.terminated = np.zeros(B, dtype=bool)
@@ -340,15 +444,18 @@ class BatchLoop:
              sc.t_max_s - 1e-9, float(self.n_max - 1)]
         )  # fmt: skip
         self._end = _jit.implementation(STEP_END)
+        cp = sc.train.coupler
+        self._coupler_lim = (cp.max_force_N, cp.max_deformation_m)
         #: whether every member's episode goes on (then a step needs no mask of its own)
         self._all_live = False
         self._act_all = np.ones(B, dtype=bool)
         self._ix_all = np.arange(B)
         self._grad = gradient_table(sc.track)
         # one (steps, columns, members) table: the runner's columns, then INFO_COLUMNS
-        self._table = np.full((self.n_max, len(_COLUMNS) + len(INFO_COLUMNS), B), np.nan)
-        self._data = {name: self._table[:, j, :] for j, name in enumerate(_COLUMNS)}
-        n0 = len(_COLUMNS)
+        names = record_columns(self.n_cars)
+        self._table = np.full((self.n_max, len(names) + len(INFO_COLUMNS), B), np.nan)
+        self._data = {name: self._table[:, j, :] for j, name in enumerate(names)}
+        n0 = len(names)
         self._info_all = {key: self._table[:, n0 + j, :] for j, key in enumerate(INFO_COLUMNS)}
         self._info_index = {key: n0 + j for j, key in enumerate(INFO_COLUMNS)}
         #: the info columns the controller has given (in INFO_COLUMNS order)
@@ -402,28 +509,39 @@ class BatchLoop:
         # the record's gradient: the plant's own reading where it is the same table
         grad = g_all[sel] if p.table is self._grad else self._grad(s)
         u_N = p.force[ix]
-        if self._plant_state:  # (single controllers: the observation's a and F too)
-            u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix], a, u_N)
-        else:
+        if not self._plant_state:
             u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix])
+        elif self._multi:  # (single controllers: the observation's a, F and cars too)
+            cars = (p.positions[sel], p.speeds[sel], p.forces[sel])
+            u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix], a, u_N, cars=cars)
+        else:
+            u, info = self.controller.compute(ix, t, s, v, self.u_prev[ix], a, u_N)
         u = np.asarray(u, dtype=float)
         v_ref, s_ref = self._reference(t, s)
         keys, icols = self._columns(tuple(info))
         n = ix.size
         info_rows = np.array([info[key] for key in keys], dtype=float) if keys else np.empty((0, n))
-        head, tail = p.step_args(self.dt, act)
-        # the ATP's brake: the scenario's train's lower bound (the plant's reading where
-        # every member runs on that train; unused without the ATP)
-        if not self.supervision.atp or p.single_train() is sc.train:
-            lo_brake = tail[1]
-        else:
-            lo_brake = sc.train.envelope_N(p.ST[:, ST_Z1])[0]
         pos, val = self._limit_table
-        live = self._end(ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols,
-                         self._table, self.k, pos, val, self._braking, self.atp_interventions,
-                         self._sp, lo_brake, *head, *tail, self.u_prev, self._moved,
-                         self.terminated, self.truncated, self.done, self._dc,
-                         -1 if self.max_steps is None else self.max_steps)  # fmt: skip
+        cap = -1 if self.max_steps is None else self.max_steps
+        if self._multi:
+            live = cars_step_end(p, self.dt, act, ix, u, t, s, v, a, grad, u_N, v_ref, s_ref,
+                                 info_rows, icols, self._table, self.k, pos, val, self._braking,
+                                 self.atp_interventions, self._sp, sc.train, self._coupler_lim,
+                                 self.u_prev, self._moved, self.terminated, self.truncated,
+                                 self.done, self._dc, cap)  # fmt: skip
+        else:
+            head, tail = p.step_args(self.dt, act)
+            # the ATP's brake: the scenario's train's lower bound (the plant's reading
+            # where every member runs on that train; unused without the ATP)
+            if not self.supervision.atp or p.single_train() is sc.train:
+                lo_brake = tail[1]
+            else:
+                lo_brake = sc.train.envelope_N(p.ST[:, ST_Z1])[0]
+            live = self._end(ix, u, t, s, v, a, grad, u_N, v_ref, s_ref, info_rows, icols,
+                             self._table, self.k, pos, val, self._braking, self.atp_interventions,
+                             self._sp, lo_brake, *head, *tail, self.u_prev, self._moved,
+                             self.terminated, self.truncated, self.done, self._dc,
+                             cap)  # fmt: skip
         if live < 0:
             raise ValueError(f"batched controller returned a non-finite command {u}")
         self._all_live = live == self.B
@@ -484,28 +602,18 @@ class BatchLoop:
         cols = {**self._data, **self._info}
         if k == 0:
             return {name: arr[:0, b].copy() for name, arr in cols.items()}
-        p, sc = self.plant, self.scenario
-        s, v = float(p.s[b]), float(p.v[b])
-        t = float(p.t[b])
-        limit = float(self._limit(s))
-        last = dict(
-            t_s=t,
-            s_m=s,
-            v_mps=v,
-            a_mps2=float(p.accel()[b]),
-            v_ref_mps=sc.reference.v_ref(t, s),
-            s_ref_m=sc.reference.s_ref(t),
-            v_limit_mps=limit,
-            gradient_permil=sc.gradient_at(s),
-            u_cmd_N=float(self.u_prev[b]),
-            u_N=float(p.force[b]),
-            work_traction_J=float(p.work_traction_J[b]),
-            work_brake_J=float(p.work_brake_J[b]),
-            saturated=0.0,
-            atp_brake=0.0,
-            overspeed_mps=max(v - limit, 0.0),
-            overrun_m=overrun_m(s, sc.s_stop_m, self._window),
-        )
+        p = self.plant
+        coupler = None
+        if self._multi:
+            f, q = p.coupler_extremes()
+            coupler = (float(f[b]), float(q[b]), *self._coupler_lim)
+        state = (float(p.t[b]), float(p.s[b]), float(p.v[b]), float(p.accel()[b]))
+        last = final_row(
+            self.scenario, self._limit, self.scenario.gradient_at, self._window, state,
+            float(np.sum(self.u_prev[b])), float(np.sum(p.forces[b])) if self._multi
+            else float(p.force[b]), float(p.work_traction_J[b]), float(p.work_brake_J[b]),
+            coupler,
+        )  # fmt: skip
         out = {}
         for name, arr in cols.items():
             col = np.empty(k + 1)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -115,10 +115,7 @@ class ClosedLoop:
         self.plant = build_plant(sc, rng)
         self.ctx = sc.control_context()
         self.controller.reset(self.ctx)
-        n_in = self.ctx.n_inputs
-        self.u_prev = np.asarray(sc.initial_command(), float).reshape(-1)
-        if self.u_prev.size != n_in:
-            self.u_prev = np.full(n_in, self.u_prev.sum() / n_in)
+        self.u_prev = initial_commands(sc, self.ctx.n_inputs)
         self.k = 0
         self._moved = sc.v0_mps > 0.1
         self.done = False
@@ -143,26 +140,8 @@ class ClosedLoop:
         return self.observe()
 
     def _alloc(self) -> None:
-        n, nc = self.n_max, self.plant.n
-        names = [
-            "t_s",
-            "s_m",
-            "v_mps",
-            "a_mps2",
-            "v_ref_mps",
-            "s_ref_m",
-            "v_limit_mps",
-            "gradient_permil",
-            "u_cmd_N",
-            "u_N",
-            "work_traction_J",
-            "work_brake_J",
-            "saturated",
-        ]
-        if nc > 1:
-            names += [f"u{i + 1}_cmd_N" for i in range(nc)]
-            names += ["coupler_force_max_N", "coupler_def_max_m"]
-        names += list(SAFETY_COLUMNS) if nc > 1 else list(SAFETY_COLUMNS[:3])
+        n = self.n_max
+        names = record_columns(self.plant.n)
         # one row per control period, in column order; the rows are appended to a list
         # (cheap per step) and moved into the preallocated table when columns are read.
         # Column-major, so that every column is a contiguous array.
@@ -336,29 +315,13 @@ class ClosedLoop:
         if not (k > 0 and self.plant is not None):
             return {name: arr[:k].copy() for name, arr in cols.items()}
         obs = self.observe()
-        sc = self.scenario
-        limit = self._limit_at(obs.s_m)
-        last = dict(
-            t_s=obs.t_s,
-            s_m=obs.s_m,
-            v_mps=obs.v_mps,
-            a_mps2=obs.a_mps2,
-            v_ref_mps=sc.reference.v_ref(obs.t_s, obs.s_m),
-            s_ref_m=sc.reference.s_ref(obs.t_s),
-            v_limit_mps=limit,
-            gradient_permil=self._gradient_at(obs.s_m),
-            u_cmd_N=float(np.sum(self.u_prev)),
-            u_N=float(np.sum(obs.forces_N)),
-            work_traction_J=self.plant.work_traction_J,
-            work_brake_J=self.plant.work_brake_J,
-            saturated=0.0,
-            atp_brake=0.0,
-            overspeed_mps=max(obs.v_mps - limit, 0.0),
-            overrun_m=overrun_m(obs.s_m, sc.s_stop_m, self._window),
-        )
-        if self.plant.n > 1:
-            f, q = self.plant._coupler_extremes()
-            last["coupler_excess"] = coupler_excess(f, q, *self._coupler_lim)
+        p = self.plant
+        coupler = (*p._coupler_extremes(), *self._coupler_lim) if p.n > 1 else None
+        last = final_row(
+            self.scenario, self._limit_at, self._gradient_at, self._window,
+            (obs.t_s, obs.s_m, obs.v_mps, obs.a_mps2), float(np.sum(self.u_prev)),
+            float(np.sum(obs.forces_N)), p.work_traction_J, p.work_brake_J, coupler,
+        )  # fmt: skip
         out = {}
         for name, arr in cols.items():
             a = np.empty(k + 1)
@@ -387,6 +350,82 @@ class ClosedLoop:
             wall_time_s=time.perf_counter() - self._t_wall,
             error=error,
         )
+
+
+def record_columns(n_cars: int) -> list[str]:
+    """The runner's recorded columns of a train of ``n_cars`` cars, in table order (the
+    info columns of :data:`INFO_COLUMNS` follow where the controller gives them)."""
+    names = [
+        "t_s",
+        "s_m",
+        "v_mps",
+        "a_mps2",
+        "v_ref_mps",
+        "s_ref_m",
+        "v_limit_mps",
+        "gradient_permil",
+        "u_cmd_N",
+        "u_N",
+        "work_traction_J",
+        "work_brake_J",
+        "saturated",
+    ]
+    if n_cars > 1:
+        names += [f"u{i + 1}_cmd_N" for i in range(n_cars)]
+        names += ["coupler_force_max_N", "coupler_def_max_m"]
+    names += list(SAFETY_COLUMNS) if n_cars > 1 else list(SAFETY_COLUMNS[:3])
+    return names
+
+
+def initial_commands(sc: Scenario, n_inputs: int) -> np.ndarray:
+    """The command ``u_prev`` an episode starts from, ``n_inputs`` entries (the
+    scenario's initial command, spread evenly where it has another size)."""
+    u = np.asarray(sc.initial_command(), float).reshape(-1)
+    if u.size != n_inputs:
+        u = np.full(n_inputs, u.sum() / n_inputs)
+    return u
+
+
+def final_row(
+    sc: Scenario,
+    limit_at: Callable[[float], float],
+    gradient_at: Callable[[float], float],
+    window_m: float,
+    state: tuple[float, float, float, float],
+    u_cmd_N: float,
+    u_N: float,
+    work_traction_J: float,
+    work_brake_J: float,
+    coupler: tuple[float, float, float, float] | None = None,
+) -> dict[str, float]:
+    """The last row of a run's columns (:meth:`ClosedLoop.arrays`): the state ``(t, s,
+    v, a)`` after the last step, the references, limit and gradient there, the last
+    command's total ``u_cmd_N``, the actual force ``u_N``, the work; ``coupler``:
+    ``(F, q, F_max, q_max)`` of a multi-car train (its ``coupler_excess``). The
+    columns it leaves out are NaN in that row."""
+    t, s, v, a = state
+    limit = limit_at(s)
+    last = dict(
+        t_s=t,
+        s_m=s,
+        v_mps=v,
+        a_mps2=a,
+        v_ref_mps=sc.reference.v_ref(t, s),
+        s_ref_m=sc.reference.s_ref(t),
+        v_limit_mps=limit,
+        gradient_permil=gradient_at(s),
+        u_cmd_N=u_cmd_N,
+        u_N=u_N,
+        work_traction_J=work_traction_J,
+        work_brake_J=work_brake_J,
+        saturated=0.0,
+        atp_brake=0.0,
+        overspeed_mps=max(v - limit, 0.0),
+        overrun_m=overrun_m(s, sc.s_stop_m, window_m),
+    )
+    if coupler is not None:
+        last["coupler_excess"] = coupler_excess(*coupler)
+    return last
 
 
 def scenario_metrics(

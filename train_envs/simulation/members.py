@@ -1,22 +1,24 @@
 """Single controllers as the batched controller of :class:`~.batch.BatchLoop`.
 
-:class:`MemberControllers` gives the lockstep runner every single-input controller
-that has no array law of its own (the linear, tube and self-triggered MPCs, the
-adaptive MPC, AFSMC, and the PID / Fuzzy-PID / DMC configurations their lockstep twins
-do not cover): member ``b``'s command is its own controller's
+:class:`MemberControllers` gives the lockstep runner every controller that has no array
+law of its own (the linear, tube and self-triggered MPCs, the adaptive MPCs, AFSMC, the
+multi-car MPCs, and the PID / Fuzzy-PID / DMC configurations their lockstep twins do
+not cover): member ``b``'s command is its own controller's
 :meth:`~train_envs.controllers.base.Controller.compute` on the
 :class:`~train_envs.controllers.base.Observation` the single runner
 (:meth:`~.loop.ClosedLoop.observe`) would hand it, built from the batched plant's
 read-outs of that member (a single-car plant: ``positions_m = [s]``, ``speeds_mps =
-[v]``, ``forces_N = [F]``). So every member equals its single closed loop bit for bit
-(tested); what the members share is the runner's step (the batched plant, the ATP, the
-record) and, in the vector env and the tuner's lockstep backend, the env's and the
-evaluation's work around it. The control law itself runs member by member.
+[v]``, ``forces_N = [F]``; a multi-car plant: its cars' positions, speeds and forces;
+with one input per car, the last command and the command are per-car vectors). So
+every member equals its single closed loop bit for bit (tested); what the members share
+is the runner's step (the batched plant, the ATP, the record) and, in the vector env
+and the tuner's lockstep backend, the env's and the evaluation's work around it. The
+control law itself runs member by member.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -66,38 +68,32 @@ class MemberControllers:
         u_prev_N: np.ndarray,
         a: np.ndarray,
         force_N: np.ndarray,
+        cars: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """One control step of members ``ix`` (times ``t``, positions ``s``, speeds
         ``v``, last commands ``u_prev_N``, accelerations ``a``, actual forces
-        ``force_N``, one entry each); returns their commands [N] and the info columns
-        of :data:`~.loop.INFO_COLUMNS` any of them gave (NaN where a member gave none,
-        as the single runner's record leaves it)."""
+        ``force_N``, one entry each; ``u_prev_N`` one row of ``n_inputs`` each where the
+        scenario has several inputs; ``cars``: the positions, speeds and forces of each
+        member's cars, one row each, on multi-car members); returns their commands [N]
+        (in ``u_prev_N``'s shape) and the info columns of :data:`~.loop.INFO_COLUMNS`
+        any of them gave (NaN where a member gave none, as the single runner's record
+        leaves it)."""
         ctrls = self.controllers
-        u = np.empty(len(ix))
+        per_input = u_prev_N.ndim == 2
+        width = u_prev_N.shape[1] if per_input else 1
+        u = np.empty(u_prev_N.shape)
         infos = []
-        rows = zip(
-            ix.tolist(), t.tolist(), s.tolist(), v.tolist(), u_prev_N.tolist(), a.tolist(),
-            force_N.tolist(), strict=True,
-        )  # fmt: skip
-        for r, (b, tr, sr, vr, ur, ar, fr) in enumerate(rows):
-            obs = Observation(
-                t_s=tr,
-                s_m=sr,
-                v_mps=vr,
-                a_mps2=ar,
-                u_prev_N=np.array([ur]),
-                positions_m=np.array([sr]),
-                speeds_mps=np.array([vr]),
-                forces_N=np.array([fr]),
-            )
+        for r, (b, obs) in enumerate(
+            zip(ix.tolist(), _observations(t, s, v, u_prev_N, a, force_N, cars), strict=True)
+        ):
             cmd, info = ctrls[b].compute(obs)
             cmd = np.asarray(cmd, dtype=float).reshape(-1)
-            if cmd.size != 1:
+            if cmd.size != width:
                 raise ValueError(
                     f"controller {ctrls[b].name} returned {cmd.size} commands for a "
-                    "one-input scenario"
+                    f"scenario with {width} input{'s' if width > 1 else ''}"
                 )
-            u[r] = cmd[0]
+            u[r] = cmd if per_input else cmd[0]
             infos.append(info)
         keys = [key for key in INFO_COLUMNS if any(key in info for info in infos)]
         out = {
@@ -105,3 +101,41 @@ class MemberControllers:
             for key in keys
         }
         return u, out
+
+
+def _observations(
+    t: np.ndarray,
+    s: np.ndarray,
+    v: np.ndarray,
+    u_prev_N: np.ndarray,
+    a: np.ndarray,
+    force_N: np.ndarray,
+    cars: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+) -> Iterator[Observation]:
+    """The :class:`Observation` of each member, as :meth:`~.loop.ClosedLoop.observe`
+    builds it: the lead car's time, position, speed and acceleration, the last command
+    (an array of ``n_inputs``), the cars' positions, speeds and forces (a single car's:
+    ``[s]``, ``[v]``, ``[F]``)."""
+    lead = zip(t.tolist(), s.tolist(), v.tolist(), a.tolist(), strict=True)
+    if u_prev_N.ndim == 2:
+        ups: Iterable[np.ndarray] = (row.copy() for row in u_prev_N)
+    else:
+        ups = (np.array([x]) for x in u_prev_N.tolist())
+    if cars is None:  # single cars
+        per_car: Iterable[tuple[np.ndarray, ...]] = (
+            (np.array([x]), np.array([y]), np.array([f]))
+            for x, y, f in zip(s.tolist(), v.tolist(), force_N.tolist(), strict=True)
+        )
+    else:
+        per_car = ((p.copy(), w.copy(), f.copy()) for p, w, f in zip(*cars, strict=True))
+    for (tr, sr, vr, ar), up, (pos, spd, frc) in zip(lead, ups, per_car, strict=True):
+        yield Observation(
+            t_s=tr,
+            s_m=sr,
+            v_mps=vr,
+            a_mps2=ar,
+            u_prev_N=up,
+            positions_m=pos,
+            speeds_mps=spd,
+            forces_N=frc,
+        )

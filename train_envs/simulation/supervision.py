@@ -111,6 +111,16 @@ def coupler_excess(force_N: float, def_m: float, force_max_N: float, def_max_m: 
     return e
 
 
+def coupler_excess_arrays(
+    force_N: np.ndarray, def_m: np.ndarray, force_max_N: float, def_max_m: float
+) -> np.ndarray:
+    """:func:`coupler_excess` elementwise (the same operations: ``0 + x`` is ``x`` for the
+    positive excesses, so the sum of the two terms is the scalar's)."""
+    rf = np.abs(force_N) / force_max_N
+    rq = np.abs(def_m) / def_max_m
+    return np.where(rf > 1.0, rf - 1.0, 0.0) + np.where(rq > 1.0, rq - 1.0, 0.0)
+
+
 class ATP:
     """The supervision state of one episode (see the module docstring for the rules)."""
 
