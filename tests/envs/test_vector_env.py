@@ -23,6 +23,10 @@ IDS = [
     "TrainEnvs/Urban004FuzzyPID-v0",
     "TrainEnvs/Stopping001-v0",  # (no array law: each member on its own RSMPC)
     "TrainEnvs/Yizhuang-v0",  # (a section per episode: one runner per section drawn)
+    # multi-car trains (each member on its own controller, the batched multi-car plant):
+    "TrainEnvs/Section000-v0",  # (6 cars, one input per car, SEMPC)
+    "TrainEnvs/Cruise002-v0",  # (4 cars, one whole-train input, adaptive MPC)
+    "TrainEnvs/Cruise003-v0",  # (8 cars, actuator dynamics, fuzzy MPC; coupler costs)
 ]
 
 
@@ -60,9 +64,36 @@ def test_vector_env_members_share_and_change_the_runners_of_their_sections():
     assert max(runners) == 2 and min(runners) >= 1
 
 
-def _steps_as_single_envs(env_id: str, cfg: dict, B: int) -> list[int]:
-    """Run the vector env against B single envs (same seeds, actions); returns the
-    number of batched runners after each step."""
+@pytest.mark.parametrize(
+    ("env_id", "episode", "steps", "what"),
+    [
+        # to the stop and past it (terminated, not truncated), the overrun cost
+        ("TrainEnvs/Section000-v0", 200, 172, "terminated"),
+        # coupler forces and deformations beyond the limits (the coupler cost)
+        ("TrainEnvs/Cruise003-v0", 20, 25, "coupler"),
+    ],
+)
+def test_multi_car_members_step_as_single_envs_through_their_episodes(env_id, episode, steps, what):
+    """Multi-car members over longer episodes than the contract test's: the reward's
+    coupler terms, the end of episode at the stop and the episode metrics, bit for bit."""
+    stats: dict = {}
+    _steps_as_single_envs(env_id, {"max_episode_steps": episode}, 3, steps, stats)
+    assert stats["resets"] == 3
+    if what == "terminated":
+        assert stats["terminated"] == 3 and stats["truncated"] == 0
+        assert stats["cost"]["overrun"] > 0.0
+    else:
+        assert stats["truncated"] == 3 and stats["cost"]["coupler"] > 0.0
+
+
+def _steps_as_single_envs(
+    env_id: str, cfg: dict, B: int, steps: int = 15, stats: dict | None = None
+) -> list[int]:
+    """Run the vector env against B single envs (same seeds, actions) for ``steps``
+    steps; returns the number of batched runners after each step. Without ``stats``,
+    episodes of 6 env steps (CFG) and two autoresets per member are checked; with it,
+    ``stats`` receives the counts of resets, terminations and truncations and the
+    members' summed cost components."""
     venv = gym.make_vec(env_id, num_envs=B, vectorization_mode="vector_entry_point", config=cfg)
     assert isinstance(venv, TrainTuningVectorEnv)
     assert venv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
@@ -75,8 +106,9 @@ def _steps_as_single_envs(env_id: str, cfg: dict, B: int) -> list[int]:
         _same_info(_member_info(infos, i), info)
     rng = np.random.default_rng(0)
     pending = [False] * B
-    resets = 0
-    for _ in range(15):  # episodes of 6 env steps: two autoresets per member
+    resets = ends_term = ends_trunc = 0
+    cost: dict[str, float] = {}
+    for _ in range(steps):  # (CFG's episodes of 6 env steps: two autoresets per member)
         actions = rng.uniform(-1, 1, venv.action_space.shape).astype(np.float32)
         obs, rew, term, trunc, infos = venv.step(actions)
         assert obs.shape == venv.observation_space.shape and obs.dtype == np.float32
@@ -88,12 +120,18 @@ def _steps_as_single_envs(env_id: str, cfg: dict, B: int) -> list[int]:
                 resets += 1
             else:
                 o, r, te, tr, info = env.step(actions[i])
+                for k, c in info["cost_components"].items():
+                    cost[k] = cost.get(k, 0.0) + c
+                ends_term, ends_trunc = ends_term + te, ends_trunc + tr
             pending[i] = te or tr
             assert np.array_equal(obs[i], o) and rew[i] == r
             assert (term[i], trunc[i]) == (te, tr)
             _same_info(_member_info(infos, i), info)
         runners.append(len(venv._loops))
-    assert resets == 2 * B
+    if stats is None:
+        assert resets == 2 * B
+    else:
+        stats.update(resets=resets, terminated=ends_term, truncated=ends_trunc, cost=cost)
     venv.close()
     return runners
 
@@ -118,21 +156,30 @@ def test_vector_env_spaces_seeding_and_reset_mask():
 
 
 def test_the_ids_of_a_lockstep_scenario_have_the_vector_entry_point():
+    """Every registered id (single-car and multi-car, one input or one per car) has the
+    native vector env, and its plant is one the lockstep runner batches."""
     from train_envs.envs.registration import ENV_SPECS
+    from train_envs.simulation.batch import batchable_member
 
     for env_id in ENV_SPECS:
+        assert gym.spec(env_id).vector_entry_point == VECTOR_ENTRY_POINT, env_id
         env = gym.make(env_id, config=CFG).unwrapped
         env.reset(seed=0)
-        single = env.loop.plant.n == 1 and env.scenario.control_context().n_inputs == 1
-        assert (gym.spec(env_id).vector_entry_point == VECTOR_ENTRY_POINT) == single, env_id
+        assert batchable_member(env.loop.plant), env_id
         env.close()
     with pytest.raises(ValueError, match="num_envs"):
         TrainTuningVectorEnv(0, config=CFG, base_config={"scenario": "paper004_urban"})
 
 
-def test_the_vector_env_refuses_what_the_lockstep_runner_cannot_batch():
+def test_the_vector_env_refuses_what_the_lockstep_runner_cannot_batch(monkeypatch):
     base = {"scenario": "paper000_single_section", "controller": "sempc"}
-    with pytest.raises(ValueError, match="several cars"):
+    cfg = dict(CFG, supervision={"end_on_violation": True})
+    with pytest.raises(ValueError, match="end_on_violation"):
+        TrainTuningVectorEnv(2, config=cfg, base_config=base)
+    import train_envs.envs.vector_env as vector_env
+
+    monkeypatch.setattr(vector_env, "batchable_member", lambda plant: False)
+    with pytest.raises(ValueError, match="not one the lockstep runner batches"):
         TrainTuningVectorEnv(2, config=CFG, base_config=base)
 
 

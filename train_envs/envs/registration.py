@@ -10,13 +10,16 @@ prefix so the child imports the package and registers the ids itself::
 
     gymnasium.make("train_envs:TrainEnvs/Stopping001PID-v0")
 
-The single-car, single-input ids (papers 001 and 004, the real lines) also register the
-native vector env (:class:`~train_envs.envs.vector_env.TrainTuningVectorEnv`) as their
+Every id also registers the native vector env
+(:class:`~train_envs.envs.vector_env.TrainTuningVectorEnv`) as its
 ``vector_entry_point``: ``gymnasium.make_vec(id, num_envs=B,
-vectorization_mode="vector_entry_point")``. Their members step in lockstep runners (one
-per real-line section drawn), on the controller's array law where it has one (PID,
-Fuzzy-PID, DMC), else each on its own controller. The multi-car ids have no batched
-plant.
+vectorization_mode="vector_entry_point")``. Its members step in lockstep runners (one
+per real-line section drawn): the single-car ids (papers 001 and 004, the real lines)
+on the batched single-car plant and the controller's array law where it has one (PID,
+Fuzzy-PID, DMC), else each member on its own controller; the multi-car ids (papers 000,
+002 and 003: one input per car or one whole-train input) on the batched multi-car plant,
+each member on its own controller. (A config with ``supervision.end_on_violation`` is
+not batched: the vector env refuses it, use ``vectorization_mode="sync"``.)
 """
 
 from __future__ import annotations
@@ -26,11 +29,8 @@ from typing import Any
 import gymnasium as gym
 
 ENTRY_POINT = "train_envs.envs.train_env:TrainTuningEnv"
-#: the native vector env of the ids on a lockstep scenario
+#: the native vector env of every id (its members on lockstep runners)
 VECTOR_ENTRY_POINT = "train_envs.envs.vector_env:TrainTuningVectorEnv"
-#: the single-car, single-input scenarios of the ids (the lockstep runner's); the
-#: real-line ids' trains are single-point models too
-LOCKSTEP_SCENARIOS = ("paper001_stopping", "paper004_urban")
 
 #: id -> (default config, one-line description)
 ENV_SPECS: dict[str, tuple[dict[str, Any], str]] = {
@@ -114,12 +114,10 @@ def register_envs() -> list[str]:
     for env_id, (config, _doc) in ENV_SPECS.items():
         if env_id in gym.registry or config["controller"] not in CONTROLLERS:
             continue
-        lockstep = config.get("scenario") in LOCKSTEP_SCENARIOS or "real_line" in config
-        vector = VECTOR_ENTRY_POINT if lockstep else None
         gym.register(
             id=env_id,
             entry_point=ENTRY_POINT,
-            vector_entry_point=vector,
+            vector_entry_point=VECTOR_ENTRY_POINT,
             kwargs={"base_config": config},
         )
     return registered_ids()

@@ -22,8 +22,13 @@ seeds member ``i`` with ``s + i`` (a list: one seed each), as
 :class:`gymnasium.vector.SyncVectorEnv` does; ``options={"reset_mask": mask}`` resets
 only the members of the mask (the others keep their last observation). Infos are
 merged per key with ``_key`` masks (:meth:`VectorEnv._add_info`). Registered as the
-``vector_entry_point`` of the single-car, single-input ids
-(:func:`train_envs.envs.registration.register_envs`).
+``vector_entry_point`` of every id (:func:`train_envs.envs.registration.register_envs`):
+single-car members on the batched single-car plant, multi-car members (one whole-train
+input or one input per car) on the batched multi-car plant, where :class:`MemberLoop`
+gives the env the coupler columns and the per-car commands' total as the single
+runner does. A plant the lockstep runner does not batch
+(:func:`~train_envs.simulation.batch.batchable_member`) and
+``supervision.end_on_violation`` are refused with a ``ValueError``.
 """
 
 from __future__ import annotations
@@ -36,20 +41,20 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from train_envs.envs.train_env import TrainTuningEnv
-from train_envs.plants.batch import batchable
-from train_envs.simulation.batch import BatchLoop
+from train_envs.simulation.batch import BatchLoop, batchable_member
 
 __all__ = ["MemberLoop", "TrainTuningVectorEnv"]
 
 
 class _MemberPlant:
-    """Member ``b``'s read-outs of the batched plant (what the env's parts read)."""
-
-    n = 1
+    """Member ``b``'s read-outs of the batched plant (what the env's parts read): the
+    lead car's time, position, speed and acceleration, the traction and braking work,
+    and the number of cars ``n`` (the reward's coupler terms on multi-car trains)."""
 
     def __init__(self, loop: BatchLoop, b: int) -> None:
         self._p = loop.plant
         self._b = b
+        self.n = loop.n_cars
 
     @property
     def t(self) -> float:
@@ -77,7 +82,13 @@ class _MemberPlant:
 
 
 class MemberLoop:
-    """Member ``b`` of a :class:`BatchLoop` as the parts of a ClosedLoop an env reads."""
+    """Member ``b`` of a :class:`BatchLoop` as the parts of a ClosedLoop an env reads:
+    the step count ``k``, the last command ``u_prev`` (an array of ``n_inputs``: one
+    whole-train input, or one per car), the controller's ``last_info``, the end of
+    episode (``terminated``, ``truncated``, ``done``; ``safety_end`` is always None: the
+    batched runner has no ``end_on_violation``), the recorded ``columns`` (with the
+    coupler columns on multi-car trains), the episode ``metrics`` and the ``plant``'s
+    read-outs (single-car and multi-car members alike)."""
 
     safety_end = None
 
@@ -93,7 +104,8 @@ class MemberLoop:
 
     @property
     def u_prev(self) -> np.ndarray:
-        return np.array([self._loop.u_prev[self._b]])
+        u = self._loop.u_prev
+        return u[self._b].copy() if u.ndim == 2 else np.array([u[self._b]])
 
     @property
     def last_info(self) -> Mapping[str, float]:
@@ -151,12 +163,18 @@ class TrainTuningVectorEnv(VectorEnv):
         for env in self.envs[1:]:  # one scenario object per section for all members
             env._section_cache = e0._section_cache
         e0.reset(seed=0)
-        if not batchable(e0.loop.plant) or e0.scenario.control_context().n_inputs != 1:
+        plant = e0.loop.plant
+        if not batchable_member(plant):
             raise ValueError(
-                f"scenario {e0.scenario.name!r} has several cars or inputs, which the lockstep "
-                "runner does not batch: use gymnasium.make_vec(..., vectorization_mode='sync')"
+                f"the plant of scenario {e0.scenario.name!r} is not one the lockstep runner "
+                "batches: use gymnasium.make_vec(..., vectorization_mode='sync')"
             )
-        self._builder = lockstep_builder(e0.controller)
+        if e0.loop.supervision.end_on_violation:
+            raise ValueError(
+                "supervision.end_on_violation is not supported by the lockstep runner: use "
+                "gymnasium.make_vec(..., vectorization_mode='sync')"
+            )
+        self._builder = lockstep_builder(e0.controller, plant.n)
         e0._np_random = None  # (drawn anew, as a fresh env's, on a reset without a seed)
         self._real_loops = [e.loop for e in self.envs]
         self.single_action_space = e0.action_space
