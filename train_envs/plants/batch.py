@@ -47,6 +47,7 @@ __all__ = [
     "CAR_STEP_HELPERS",
     "BatchSingleCar",
     "batch_car_step",
+    "members_envelope",
     "run_batch",
 ]
 
@@ -203,6 +204,21 @@ _jit.register(
     source=accel_loop,
     helpers={"bisect_right": _jit.bisect_right, "gradient_at": gradient_at},
 )
+
+
+def members_envelope(
+    groups: Sequence[tuple[object, np.ndarray]], v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(−B(v), F(v))`` of a population's members at their speeds ``v`` (one per
+    member), from ``groups``: ``(train, member indices)`` per train the members run on
+    (:meth:`TrainParams.envelope_N` once per train)."""
+    if len(groups) == 1:
+        return groups[0][0].envelope_N(v)
+    lo = np.empty(v.shape[0])
+    hi = np.empty(v.shape[0])
+    for train, ix in groups:
+        lo[ix], hi[ix] = train.envelope_N(v[ix])
+    return lo, hi
 
 
 def batchable(plant: TrainPlant) -> bool:
@@ -383,13 +399,7 @@ class BatchSingleCar:
 
     def envelope(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(−B(v), F(v))`` of each member's own train at its speed ``v``."""
-        if len(self._groups) == 1:
-            return self._groups[0][0].envelope_N(v)
-        lo = np.empty(self.B)
-        hi = np.empty(self.B)
-        for train, ix in self._groups:
-            lo[ix], hi[ix] = train.envelope_N(v[ix])
-        return lo, hi
+        return members_envelope(self._groups, v)
 
     # ------------------------------------------------------------- stepping
     def step(self, u: np.ndarray, duration_s: float, active: np.ndarray) -> None:

@@ -71,6 +71,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from train_envs.plants.batch import members_envelope
 from train_envs.plants.crossing import jump_corrections
 from train_envs.plants.integrator import ETD2Integrator
 from train_envs.plants.lookup import PiecewiseLinear
@@ -479,14 +480,7 @@ class BatchMultiCar:
     def envelope(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(−B(v), F(v))`` of each member's own (whole) train at its speed ``v``
         (vectorised :meth:`TrainParams.envelope_N`, as :meth:`BatchSingleCar.envelope`)."""
-        v = np.asarray(v, dtype=float)
-        if len(self._train_groups) == 1:
-            return self._train_groups[0][0].envelope_N(v)
-        lo = np.empty(self.B)
-        hi = np.empty(self.B)
-        for train, ix in self._train_groups:
-            lo[ix], hi[ix] = train.envelope_N(v[ix])
-        return lo, hi
+        return members_envelope(self._train_groups, np.asarray(v, dtype=float))
 
     # ------------------------------------------------------------- the model
     def _consts(self, ix: np.ndarray) -> _Consts:
