@@ -201,3 +201,37 @@ def test_after_a_capped_solve_the_exact_finish_runs_first_and_gives_the_optimum(
         mpc.reset()
         assert not mpc._exact_first
     assert firsts >= 24
+
+
+def test_singular_active_set_systems_in_a_row_send_the_problem_to_daqp(monkeypatch):
+    """After ``_KKT_TRIES`` singular active-set KKT systems in a row a sparse-form problem
+    goes to DAQP directly (scipy's SuperLU keeps memory of each failed factorisation of
+    these systems), still with DAQP's optimum; ``reset`` lets it try the active set
+    again."""
+    import train_envs.mpc.recovery as recovery
+
+    calls = []
+
+    def singular(K):
+        calls.append(K.shape)
+        raise RuntimeError("Factor is exactly singular")
+
+    case = random_instance(0)
+    inst = dict(case["inst"], form="sparse", osqp_settings={"max_iter": 10})
+    data = case["data"]
+    mpc = LinearMPC(**inst)
+    mpc.solve(data["x0"], data["u_prev"], data["y_ref"], d=data["d"])
+    x, y, _ = mpc._backend.solve()
+    mpc._sparse = False
+    ref = mpc._exact(x, y)  # DAQP alone
+    mpc._sparse = True
+    monkeypatch.setattr(recovery, "spla", SimpleNamespace(splu=singular))
+    mpc._kkt_singular = 0  # (the capped solve above may have met a singular one)
+    for _ in range(recovery._KKT_TRIES + 3):
+        out = mpc._exact(x, y)
+        assert isinstance(out, tuple)
+        np.testing.assert_array_equal(out[0], ref[0])
+    assert len(calls) == recovery._KKT_TRIES
+    mpc.reset()
+    mpc._exact(x, y)
+    assert len(calls) == recovery._KKT_TRIES + 1

@@ -302,6 +302,8 @@ class LinearMPC(
         #: the last OSQP solve ended at its cap (or solved inaccurate): the exact
         #: finish runs first (from the warm start) until it fails once
         self._exact_first = False
+        #: singular active-set KKT systems in a row (sparse form; see _active_set_kkt)
+        self._kkt_singular = 0
 
     def reset_solver(self) -> None:
         """:meth:`reset` plus OSQP's own state: initial ``rho`` and a zero iterate.

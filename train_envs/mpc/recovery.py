@@ -101,6 +101,11 @@ def _kkt_point(
     return w, lam, float(0.5 * (w @ Pw) + q @ w)
 
 
+#: singular active-set KKT systems in a row after which a sparse-form problem stops
+#: trying the active set OSQP names (:meth:`_RecoveryMixin._active_set_kkt`) until reset
+_KKT_TRIES = 3
+
+
 class _RecoveryMixin:
     """Rescue, exact refinement, fallback plan and its evaluation."""
 
@@ -196,7 +201,7 @@ class _RecoveryMixin:
         lo = np.maximum(self._l, -_BIG)
         hi = np.minimum(self._u, _BIG)
         eq = hi - lo <= 1e-12 * (1.0 + np.abs(hi))
-        if getattr(self, "_sparse", False):
+        if getattr(self, "_sparse", False) and self.__dict__.get("_kkt_singular", 0) < _KKT_TRIES:
             out = self._active_set_kkt(x, y, P, A, q, lo, hi, eq)
             if out is not None:
                 return out
@@ -251,7 +256,11 @@ class _RecoveryMixin:
         try:
             sol = spla.splu(K).solve(rhs)
         except RuntimeError:  # singular: dependent active rows
+            # (scipy's SuperLU keeps ~0.2 MB of every such factorisation of these KKT
+            # systems: after _KKT_TRIES in a row this problem goes to DAQP directly)
+            self._kkt_singular = self.__dict__.get("_kkt_singular", 0) + 1
             return None
+        self._kkt_singular = 0
         lam = np.zeros(A.shape[0])
         lam[act] = sol[n:]
         return _kkt_point(P, A, q, lo, hi, sol[:n], lam)
