@@ -72,6 +72,7 @@ from tuners.storage import (
     StudyStore,
     checkpoint_info,
     code_fingerprint,
+    drop_interrupted_frames,
     evaluations_frame,
     load_study,
     stored_run_config,
@@ -635,6 +636,7 @@ def _run(
                 )
         res = algorithm.result()
     except KeyboardInterrupt as exc:
+        drop_interrupted_frames(exc)  # else an open cursor blocks the study's last writes
         be.terminate()
         n = len(store.load_cache())
         raise TuneInterrupted(study_name, storage, n) from exc

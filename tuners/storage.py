@@ -108,6 +108,7 @@ __all__ = [
     "check_storage",
     "checkpoint_info",
     "delete_study",
+    "drop_interrupted_frames",
     "evaluations_frame",
     "list_studies",
     "load_study",
@@ -335,6 +336,19 @@ def _jsonable(obj: Any) -> Any:
     return json.loads(json.dumps(obj, default=lambda o: np.asarray(o).tolist()))
 
 
+def drop_interrupted_frames(exc: BaseException) -> BaseException:
+    """Drop the traceback of an interrupt (Ctrl-C) before the study is written again.
+
+    A ``KeyboardInterrupt`` raised while SQLAlchemy reads the study keeps the frames it
+    unwound, and with them a cursor whose statement is still open: on SQLite that
+    connection holds a shared lock, so the next write of this process (releasing the
+    lease, a last trial) waits the whole busy timeout (60 s). Without the frames the
+    cursor is finalised at once. Returns ``exc``.
+    """
+    exc.__traceback__ = None
+    return exc
+
+
 class StudyStore:
     """Writes evaluations and checkpoints of one run to an Optuna study.
 
@@ -369,7 +383,9 @@ class StudyStore:
         self.lease: StudyLease | None = StudyLease(self.storage, study_name).acquire()
         try:
             self._open(problem, resume, check_keys)
-        except BaseException:
+        except BaseException as exc:
+            if isinstance(exc, KeyboardInterrupt):
+                drop_interrupted_frames(exc)
             self.close()
             raise
         self.distributions = {

@@ -201,3 +201,34 @@ def test_ctrl_c_is_one_line_and_exit_130(tmp_path):
         err.startswith("interrupted after ") and "evaluations; resume with: train-envs tune" in err
     )
     assert "--study c" in err and "--resume" in err
+
+
+def test_ctrl_c_inside_a_read_of_the_study_does_not_block_its_last_writes(tmp_path):
+    """A Ctrl-C that lands while SQLAlchemy reads the study leaves the interrupted
+    frames holding an open cursor (a shared lock on SQLite): the lease release and the
+    study's last writes must not wait the 60 s busy timeout on it."""
+    import sqlalchemy as sa
+
+    from tuners.lease import lease_holder
+    from tuners.run import TuneInterrupted, tune
+    from tuners.storage import open_storage
+
+    storage = open_storage(f"sqlite:///{tmp_path / 'runs.db'}")
+    problem = PymooTaskProblem(get_problem("bnh"), name="bnh")
+    seen = {"evaluations": 0}
+
+    def count(key, outcome, generation):
+        seen["evaluations"] += 1
+
+    def interrupt_a_read(conn, cursor, statement, *args):
+        if seen["evaluations"] >= 7 and statement.lstrip().upper().startswith("SELECT"):
+            sa.event.remove(storage.engine, "after_cursor_execute", interrupt_a_read)
+            raise KeyboardInterrupt  # as Ctrl-C does, between two rows of a read
+
+    sa.event.listen(storage.engine, "after_cursor_execute", interrupt_a_read)
+    t0 = time.perf_counter()
+    with pytest.raises(TuneInterrupted):
+        tune(problem, "pso", pop=5, iters=50, backend="serial", storage=storage,
+             study="c", seed=1, on_evaluation=count)  # fmt: skip
+    assert time.perf_counter() - t0 < 30  # the busy timeout alone is 60 s
+    assert lease_holder(storage, "c") is None  # released, not left to go stale
