@@ -549,6 +549,9 @@ def tune(
                 on_evaluation=on_evaluation,
                 t_start=t_start,
             )
+        except KeyboardInterrupt as exc:  # (one before the loop: a resume's first read)
+            drop_interrupted_frames(exc)
+            raise
         finally:
             store.close()
     except BaseException:
