@@ -18,7 +18,13 @@ default action and under a new uniformly random action at every step (what an RL
 agent's exploration sends), measured alternately in the same process (the order
 flips every round; one warm-up episode of each first), with the median per-round ratio
 random / constant; each round runs ``--steps`` env steps (episodes restart as needed,
-reset time included).
+reset time included). A third policy, "held random", draws a random action like the
+random one but holds it for ``--hold`` env steps (default 50): it pays for the values
+of random parameters (a controller may work harder at some weights than at its
+defaults: shorter holds, more constrained steps) with almost none of the cost of
+changing them, so random / held random is the share lost to the changes themselves and
+held random / constant the share lost to the parameters' values. The three take turns
+within a round (the order rotates every round).
 
 ``--osqp-tail [--steps 300]``: per id, the solve times of every QP solve that ran OSQP
 or the exact finish first (``MPCSolution.solve_time_s``: OSQP plus the exact finish;
@@ -40,6 +46,7 @@ on a shared machine; the real-time factor is then per CPU second).
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
 import os
@@ -47,6 +54,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -137,46 +145,63 @@ def bench(env_id: str, episodes: int, noise: float = 0.0) -> dict[str, float]:
     }
 
 
-def _rate(env: gym.Env, action, steps: int, seed: int) -> float:
-    """Env steps/s over ``steps`` steps; ``action()`` gives each step's action."""
+def _rate(env: gym.Env, actions: Sequence[np.ndarray], seed: int) -> float:
+    """Env steps/s over the steps of ``actions``, drawn before the clock starts (a
+    policy's cost is not the env's: ``Box.sample`` alone takes ~19 µs, a tenth of a PID
+    env step)."""
     env.reset(seed=seed)
     t0 = _clock()
-    for _ in range(steps):
-        _, _, term, trunc, _ = env.step(action())
+    for a in actions:
+        _, _, term, trunc, _ = env.step(a)
         if term or trunc:
             env.reset(seed=seed)
-    return steps / (_clock() - t0)
+    return len(actions) / (_clock() - t0)
 
 
-def constant_action(a: np.ndarray):
-    """A callable returning ``a`` (the constant-action policy)."""
-    return lambda: a
+def draw_actions(space: gym.Space, steps: int, hold: int = 1) -> list[np.ndarray]:
+    """``steps`` actions: random draws of ``space`` (seeded by the caller), each held
+    for ``hold`` steps (1: a new action every step)."""
+    out: list[np.ndarray] = []
+    while len(out) < steps:
+        out.extend([space.sample()] * hold)
+    return out[:steps]
 
 
-def side_by_side(ids: list[str], steps: int, rounds: int) -> None:
-    """Constant- and random-action env steps/s per id, alternating, with their ratio."""
+def side_by_side(ids: list[str], steps: int, rounds: int, hold: int = 50) -> None:
+    """Constant-, held-random- and random-action env steps/s per id, in turns, with the
+    ratios random / constant and random / held random."""
     print(
-        f"| env id | constant action [steps/s] | random action [steps/s] | random / constant "
-        f"|  ({rounds} rounds of {steps} steps)"
+        f"| env id | constant action [steps/s] | held random, {hold} steps [steps/s] | "
+        f"random action [steps/s] | random / constant | random / held random | "
+        f" ({rounds} rounds of {steps} steps)"
     )
-    print("|---|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|")
+    names = ("constant", "held", "random")
     for env_id in ids:
         env = gym.make(env_id)
         space = env.action_space
         space.seed(0)
-        acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
-        for act in acts.values():  # warm-up: QPs built on first use
-            _rate(env, act, steps // 4 + 1, seed=10_000)
-        rates: dict[str, list[float]] = {"constant": [], "random": []}
+        held_space = copy.deepcopy(space)  # its own stream of held actions
+        held_space.seed(1)
+        a0 = params_to_action(env, {})
+        draws = {
+            "constant": lambda n, a0=a0: [a0] * n,
+            "held": lambda n, sp=held_space: draw_actions(sp, n, hold),
+            "random": lambda n, sp=space: draw_actions(sp, n),
+        }
+        for name in names:  # warm-up: QPs built on first use
+            _rate(env, draws[name](steps // 4 + 1), seed=10_000)
+        rates: dict[str, list[float]] = {name: [] for name in names}
         for r in range(rounds):
-            order = ("constant", "random") if r % 2 == 0 else ("random", "constant")
-            for name in order:
-                rates[name].append(_rate(env, acts[name], steps, seed=r))
+            for name in names[r % 3 :] + names[: r % 3]:
+                rates[name].append(_rate(env, draws[name](steps), seed=r))
         env.close()
-        ratios = [b / a for a, b in zip(rates["constant"], rates["random"], strict=True)]
+        med = statistics.median
+        to_const = [b / a for a, b in zip(rates["constant"], rates["random"], strict=True)]
+        to_held = [b / a for a, b in zip(rates["held"], rates["random"], strict=True)]
         print(
-            f"| {env_id} | {statistics.median(rates['constant']):.0f} | "
-            f"{statistics.median(rates['random']):.0f} | {statistics.median(ratios):.2f} |",
+            f"| {env_id} | {med(rates['constant']):.0f} | {med(rates['held']):.0f} | "
+            f"{med(rates['random']):.0f} | {med(to_const):.2f} | {med(to_held):.2f} |",
             flush=True,
         )
 
@@ -233,10 +258,11 @@ def osqp_tail(ids: list[str], steps: int) -> None:
             env = gym.make(env_id)
             space = env.action_space
             space.seed(0)
-            acts = {"constant": constant_action(params_to_action(env, {})), "random": space.sample}
+            acts = {"constant": [params_to_action(env, {})] * steps}
+            acts["random"] = draw_actions(space, steps)
             for name, act in acts.items():
                 rows.clear()
-                _rate(env, act, steps, seed=0)
+                _rate(env, act, seed=0)
                 a = np.array(rows).reshape(-1, 5) * [1e3, 1e3, 1, 1, 1e3]
                 t, cpu, it, f = a[:, 0], a[:, 1], a[:, 2], a[:, 4]
                 fin = f > 0.0
@@ -327,6 +353,7 @@ def main() -> None:
     ap.add_argument("--cpu-time", action="store_true", help="measure process CPU time")
     ap.add_argument("--side-by-side", action="store_true", help="constant vs random action per id")
     ap.add_argument("--steps", type=int, default=300, help="--side-by-side: steps per round")
+    ap.add_argument("--hold", type=int, default=50, help="--side-by-side: held-random hold")
     ap.add_argument("--osqp-tail", action="store_true", help="OSQP solve-time tail per id")
     args = ap.parse_args()
     if args.cpu_time:
@@ -340,7 +367,7 @@ def main() -> None:
         osqp_tail(ids, args.steps)
         return
     if args.side_by_side:
-        side_by_side(ids, args.steps, args.rounds)
+        side_by_side(ids, args.steps, args.rounds, args.hold)
         return
     rows = [bench(env_id, args.episodes, args.noise) for env_id in ids]
     if args.json:
