@@ -3,7 +3,7 @@
 Usage::
 
     train-envs train --env TrainEnvs/Stopping001PID-v0 --algo ppo --timesteps 100000 \\
-        --seed 0 --out runs/stop-ppo [--n-envs 2] [--vec subproc|dummy]
+        --seed 0 --out runs/stop-ppo [--n-envs 2] [--vec dummy|subproc|native]
     train-envs evaluate --env TrainEnvs/Stopping001PID-v0 --policy runs/stop-ppo \\
         --params sqlite:///tuning.db:stop-mowoa --controller pid --episodes 5 --out out/eval
 
@@ -69,7 +69,13 @@ def add_train_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="run folder (default runs/<env>-<algo>-s<seed>)")
     p.add_argument("--n-envs", type=int, default=None, help="parallel envs (default: YAML)")
-    p.add_argument("--vec", default="dummy", choices=["dummy", "subproc"])
+    p.add_argument(
+        "--vec",
+        default="dummy",
+        choices=["dummy", "subproc", "native"],
+        help="vectorisation: dummy (in-process), subproc (a process per env), native (the "
+        "id's vector env, members in lockstep in one process)",
+    )
     p.add_argument("--config", default=None, help="env config as JSON or @file.json")
     p.add_argument(
         "--hyperparams",

@@ -1,8 +1,10 @@
 """Train stable-baselines3 PPO / SAC / TD3 policies that set the inner controller's tuning.
 
-:func:`train` builds the vectorised env (``DummyVecEnv`` or ``SubprocVecEnv`` with the
-``spawn`` start method; children get the env id with the ``train_envs:`` module prefix
-so that they register the ids themselves), wraps it in ``VecNormalize`` when the
+:func:`train` builds the vectorised env (``DummyVecEnv``, ``SubprocVecEnv`` with the
+``spawn`` start method -- children get the env id with the ``train_envs:`` module prefix
+so that they register the ids themselves -- or the id's native vector env, whose
+members step in lockstep in one process, through
+:class:`~agents.vec_adapter.GymnasiumVecEnv`), wraps it in ``VecNormalize`` when the
 hyperparameters say so, and learns with an ``EvalCallback`` on held-out seeds,
 checkpoints, TensorBoard logs (if ``tensorboard`` is installed) and an optional
 progress bar. A run folder holds::
@@ -10,7 +12,8 @@ progress bar. A run folder holds::
     model.zip            final model          vecnormalize.pkl  its normalisation stats
     best/best_model.zip  best evaluation      best/vecnormalize.pkl
     checkpoints/         rl_model_<n>_steps.zip (+ rl_model_vecnormalize_<n>_steps.pkl)
-    eval/evaluations.npz EvalCallback log     monitor/          Monitor CSVs
+    eval/evaluations.npz EvalCallback log     monitor/          Monitor CSVs (one per env;
+                                                                  native: one for all)
     tb/                  TensorBoard logs     config.json       the run's settings
 
 :func:`load_policy` reloads a model (and its VecNormalize statistics) for evaluation.
@@ -33,7 +36,7 @@ import numpy as np
 
 from agents.hyperparameters import HyperParams, algo_class, check_algo, resolve_hyperparams
 
-VEC_KINDS = ("dummy", "subproc")
+VEC_KINDS = ("dummy", "subproc", "native")
 MODULE_PREFIX = "train_envs:"
 
 __all__ = [
@@ -75,7 +78,10 @@ class TrainConfig:
         seed: seed of the model and of the training envs (env ``i`` gets ``seed + i``).
         out: run folder (None: ``runs/<env>-<algo>-s<seed>``).
         n_envs: parallel training envs (None: the entry's ``n_envs``).
-        vec: ``dummy`` (in-process) or ``subproc`` (one process per env, spawn).
+        vec: ``dummy`` (in-process), ``subproc`` (one process per env, spawn) or
+            ``native`` (the id's native vector env: ``gymnasium.make_vec(id,
+            num_envs=n_envs, vectorization_mode="vector_entry_point")``, members in
+            lockstep in one process; the same episodes as ``dummy`` for the same seeds).
         env_config: env config (``gymnasium.make(id, config=...)``), merged over the
             entry's ``env_kwargs.config``; also used for the evaluation env.
         hyperparams: overrides of the YAML entry's keys.
@@ -168,18 +174,76 @@ def make_training_env(
 ) -> Any:
     """A (VecNormalize-wrapped) SB3 VecEnv of ``env_id``; env ``i`` is seeded ``seed + i``.
 
-    ``normalize`` holds VecNormalize keyword arguments (None: no normalisation); with
-    ``training=False`` its statistics are frozen and rewards are not normalised (for
-    evaluation envs).
+    ``vec``: one of :data:`VEC_KINDS` (see :class:`TrainConfig`). ``normalize`` holds
+    VecNormalize keyword arguments (None: no normalisation); with ``training=False`` its
+    statistics are frozen and rewards are not normalised (for evaluation envs).
     """
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+    from stable_baselines3.common.vec_env import VecNormalize
 
     bare = check_env_id(env_id)
     if vec not in VEC_KINDS:
         raise ValueError(f"vec must be one of {', '.join(VEC_KINDS)}; got {vec!r}")
+    if vec == "native":
+        venv = _native_vec_env(bare, int(n_envs), seed, config, monitor_dir)
+    else:
+        venv = _sb3_vec_env(bare, int(n_envs), vec, seed, config, monitor_dir)
+    if normalize is not None:
+        venv = VecNormalize(venv, **dict(normalize))
+        if not training:
+            venv.training = False
+            venv.norm_reward = False
+    return venv
+
+
+def _native_vec_env(
+    bare: str,
+    n_envs: int,
+    seed: int | None,
+    config: Mapping[str, Any] | None,
+    monitor_dir: str | Path | None,
+) -> Any:
+    """The id's native vector env as an SB3 VecEnv (member ``i`` seeded ``seed + i`` at
+    the first reset, episode statistics by ``VecMonitor`` in ``monitor_dir``)."""
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from agents.vec_adapter import GymnasiumVecEnv
+
+    if gym.spec(bare).vector_entry_point is None:
+        raise ValueError(
+            f"vec 'native' needs an env id with a native vector env; {bare} has none "
+            "(use vec 'dummy' or 'subproc')"
+        )
+    venv = GymnasiumVecEnv(
+        gym.make_vec(
+            bare,
+            num_envs=n_envs,
+            vectorization_mode="vector_entry_point",
+            config=dict(config or {}),
+        )
+    )
+    venv.seed(seed)
+    filename = None
+    if monitor_dir is not None:
+        Path(monitor_dir).mkdir(parents=True, exist_ok=True)
+        filename = str(Path(monitor_dir) / "native")
+    return VecMonitor(venv, filename=filename)
+
+
+def _sb3_vec_env(
+    bare: str,
+    n_envs: int,
+    vec: str,
+    seed: int | None,
+    config: Mapping[str, Any] | None,
+    monitor_dir: str | Path | None,
+) -> Any:
+    """SB3's ``DummyVecEnv`` / ``SubprocVecEnv`` of single envs, each in a ``Monitor``."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
     kwargs: dict[str, Any] = {
-        "n_envs": int(n_envs),
+        "n_envs": n_envs,
         "seed": seed,
         "env_kwargs": {"config": dict(config or {})},
         "monitor_dir": None if monitor_dir is None else str(monitor_dir),
@@ -188,13 +252,7 @@ def make_training_env(
         kwargs.update(vec_env_cls=SubprocVecEnv, vec_env_kwargs={"start_method": "spawn"})
     else:
         kwargs.update(vec_env_cls=DummyVecEnv)
-    venv = make_vec_env(MODULE_PREFIX + bare, **kwargs)
-    if normalize is not None:
-        venv = VecNormalize(venv, **dict(normalize))
-        if not training:
-            venv.training = False
-            venv.norm_reward = False
-    return venv
+    return make_vec_env(MODULE_PREFIX + bare, **kwargs)
 
 
 def _freq_calls(steps: int, n_envs: int) -> int:

@@ -40,6 +40,8 @@ class GymnasiumVecEnv(VecEnv):
 
     def __init__(self, venv: gym.vector.VectorEnv) -> None:
         self.venv = venv
+        #: the vector env's spec (SB3's ``VecMonitor`` names its id in the file header)
+        self.spec = getattr(venv, "spec", None)
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
         self._actions: np.ndarray | None = None
 

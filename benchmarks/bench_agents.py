@@ -1,4 +1,5 @@
-"""PPO training throughput (env steps/s): DummyVecEnv ×1 vs SubprocVecEnv ×1 and ×2.
+"""PPO training throughput (env steps/s) by vectorisation: DummyVecEnv ×1, SubprocVecEnv
+×1 and ×2, DummyVecEnv ×4 against the native vector env ×4 (``--configs``).
 
 Every configuration trains PPO for ``--timesteps`` env steps on each env id with the
 same rollout size (``n_steps = rollout // n_envs``), no evaluation, no checkpoints and
@@ -9,6 +10,7 @@ that background load affects them alike; the table shows the median over repeats
 Usage::
 
     .venv/bin/python benchmarks/bench_agents.py [--timesteps 1024] [--repeats 2]
+        [--configs dummy:1 native:4 ...]
 
 ``--env-share [--envs ...]``: PPO with the SB3 settings of ``agents/hyperparams/ppo.yml``
 (one in-process env, VecNormalize, one torch thread) on each id and on a trivial env of
@@ -32,7 +34,7 @@ import pandas as pd
 from agents.training import TrainConfig, train
 
 ENVS = ("TrainEnvs/Stopping001PID-v0", "TrainEnvs/Urban004-v0")
-CONFIGS = (("dummy", 1), ("subproc", 1), ("subproc", 2))
+CONFIGS = (("dummy", 1), ("subproc", 1), ("subproc", 2), ("dummy", 4), ("native", 4))
 SHARE_ENVS = ("TrainEnvs/Stopping001-v0", "TrainEnvs/Section000-v0")
 
 
@@ -132,6 +134,16 @@ def ppo_env_share(env_id: str, timesteps: int, seed: int = 0) -> dict[str, float
     return out
 
 
+def _config(text: str) -> tuple[str, int]:
+    """``vec:n`` -> ``(vec, n)`` (an argparse type: anything else is a usage error)."""
+    vec, _, n = text.partition(":")
+    if vec not in ("dummy", "subproc", "native") or not n.isdigit() or int(n) < 1:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected VEC:N, VEC one of dummy, subproc, native and N >= 1"
+        )
+    return vec, int(n)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--timesteps", type=int, default=1024, help="env steps per run")
@@ -139,7 +151,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=2)
     p.add_argument("--envs", nargs="+", default=None)
     p.add_argument("--env-share", action="store_true", help="PPO env share vs trivial env")
+    p.add_argument(
+        "--configs",
+        nargs="+",
+        type=_config,
+        default=None,
+        metavar="VEC:N",
+        help="vectorisations as vec:n_envs (vec: dummy, subproc, native); default "
+        + " ".join(f"{v}:{n}" for v, n in CONFIGS),
+    )
     args = p.parse_args(argv)
+    configs = CONFIGS if args.configs is None else tuple(args.configs)
     if args.env_share:
         print(
             "| env id | PPO steps/s | env share of wall time | trivial env: PPO steps/s "
@@ -161,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for rep in range(args.repeats):
         for env_id in args.envs:
-            for vec, n in CONFIGS:
+            for vec, n in configs:
                 r = measure(env_id, vec, n, args.timesteps, args.rollout, seed=rep)
                 rates.setdefault((env_id, f"{vec} x{n}"), []).append(r)
                 print(f"  repeat {rep}: {env_id} {vec} x{n}: {r:.1f} steps/s", flush=True)
@@ -170,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append({"env": env_id, "vec_env": cfg, "steps_per_s": statistics.median(vals)})
     df = pd.DataFrame(rows)
     table = df.pivot(index="env", columns="vec_env", values="steps_per_s")
-    table = table[[f"{v} x{n}" for v, n in CONFIGS]]
+    table = table[[f"{v} x{n}" for v, n in configs]]
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(
         f"\nPPO training throughput [env steps/s], median of {args.repeats} repeat(s), "

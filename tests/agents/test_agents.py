@@ -154,7 +154,7 @@ def test_bad_algo_and_env_names_raise_clear_errors(tmp_path):
         train(env_id=PID_ID, algo="dqn", timesteps=8, out=tmp_path)
     with pytest.raises(ValueError, match=r"env 'TrainEnvs/Nope-v0' is not registered.*Urban004"):
         train(env_id="TrainEnvs/Nope-v0", timesteps=8, out=tmp_path)
-    with pytest.raises(ValueError, match="vec must be one of dummy, subproc"):
+    with pytest.raises(ValueError, match="vec must be one of dummy, subproc, native"):
         TrainConfig(env_id=PID_ID, vec="forkserver").validate()
     with pytest.raises(ValueError, match="timesteps must be"):
         TrainConfig(env_id=PID_ID, timesteps=0).validate()
@@ -169,6 +169,45 @@ def test_bad_algo_and_env_names_raise_clear_errors(tmp_path):
 
 
 # --------------------------------------------------------------- train / reload
+def test_native_vector_env_trains_the_same_policy_as_the_dummy_one(tmp_path):
+    """``vec="native"`` (the id's vector env through the SB3 adapter) gives PPO the
+    episodes of ``DummyVecEnv`` of single envs for the same seeds: the trained policies
+    are equal bit for bit, and the monitor files hold the same episodes (their returns
+    summed from the float32 rewards SB3 sees: to 1e-6 relative of Monitor's sums)."""
+    import torch
+    from stable_baselines3 import PPO
+
+    params, episodes = {}, {}
+    for vec in ("dummy", "native"):
+        res = train(
+            env_id=PID_ID,
+            timesteps=256,
+            seed=3,
+            out=tmp_path / vec,
+            n_envs=2,
+            vec=vec,
+            hyperparams={"n_steps": 64, "batch_size": 64, "n_epochs": 2},
+            eval_freq=0,
+            checkpoint_freq=0,
+            tensorboard=False,
+        )
+        assert res.timesteps == 256 and res.n_envs == 2
+        params[vec] = PPO.load(res.model_path, device="cpu").policy.state_dict()
+        frames = [
+            pd.read_csv(f, skiprows=1) for f in sorted((tmp_path / vec / "monitor").iterdir())
+        ]
+        episodes[vec] = pd.concat(frames).sort_values(["r", "l"]).reset_index(drop=True)
+    assert params["dummy"].keys() == params["native"].keys()
+    for key, val in params["dummy"].items():
+        assert torch.equal(val, params["native"][key]), key
+    native_monitor = tmp_path / "native" / "monitor" / "native.monitor.csv"
+    assert PID_ID in native_monitor.read_text().splitlines()[0]
+    dummy, native = episodes["dummy"], episodes["native"]
+    assert len(dummy) == len(native) >= 4
+    assert (dummy["l"] == native["l"]).all()
+    np.testing.assert_allclose(native["r"], dummy["r"], rtol=1e-6)
+
+
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_train_save_reload_evaluate_deterministic(runs, algo):
     run = runs[algo]
