@@ -21,7 +21,8 @@ not terminated or truncated, the reset's observation and info). ``reset(seed=s)`
 seeds member ``i`` with ``s + i`` (a list: one seed each), as
 :class:`gymnasium.vector.SyncVectorEnv` does; ``options={"reset_mask": mask}`` resets
 only the members of the mask (the others keep their last observation). Infos are
-merged per key with ``_key`` masks (:meth:`VectorEnv._add_info`). Registered as the
+merged per key with ``_key`` masks, as :meth:`VectorEnv._add_info` merges them
+(:func:`~train_envs.envs.vector_info.merge_infos`, one pass per key). Registered as the
 ``vector_entry_point`` of every id (:func:`train_envs.envs.registration.register_envs`):
 single-car members on the batched single-car plant, multi-car members (one whole-train
 input or one input per car) on the batched multi-car plant, where :class:`MemberLoop`
@@ -41,6 +42,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from train_envs.envs.train_env import TrainTuningEnv
+from train_envs.envs.vector_info import merge_infos
 from train_envs.simulation.batch import BatchLoop, batchable_member
 
 __all__ = ["MemberLoop", "TrainTuningVectorEnv"]
@@ -242,19 +244,17 @@ class TrainTuningVectorEnv(VectorEnv):
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         obs = np.zeros(self.observation_space.shape, dtype=self.single_observation_space.dtype)
-        infos: dict[str, Any] = {}
+        infos: list[dict[str, Any] | None] = [None] * B
         if mask is None:  # every member: a new batched runner
             for b, env in enumerate(self.envs):
                 env.loop = self._real_loops[b]
-                infos = self._add_info(
-                    infos, env.reset(seed=seeds[b], options=options or None)[1], b
-                )
+                infos[b] = env.reset(seed=seeds[b], options=options or None)[1]
             self._build()
             for b in range(B):
                 obs[b] = self._bind(b)
             self._pending[:] = False
             self._obs = obs.copy()
-            return obs, infos
+            return obs, merge_infos(infos, B)
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (B,):
             raise ValueError(f"options reset_mask must be a ({B},) boolean array")
@@ -262,12 +262,11 @@ class TrainTuningVectorEnv(VectorEnv):
             raise ValueError("reset with a reset_mask needs a first full reset")
         for b in range(B):
             if mask[b]:
-                obs[b], info = self._reset_member(b, seeds[b], options or None)
-                infos = self._add_info(infos, info, b)
+                obs[b], infos[b] = self._reset_member(b, seeds[b], options or None)
             else:  # the members left alone: their last observation
                 obs[b] = self._obs[b]
         self._obs = obs.copy()
-        return obs, infos
+        return obs, merge_infos(infos, B)
 
     def _runner(self, sc: Any, members: Sequence[int]) -> BatchLoop:
         """A batched runner of scenario ``sc`` with a slot per member, ``members`` (on
@@ -317,7 +316,7 @@ class TrainTuningVectorEnv(VectorEnv):
         rewards = np.zeros(B)
         terms = np.zeros(B, dtype=bool)
         truncs = np.zeros(B, dtype=bool)
-        infos: dict[str, Any] = {}
+        infos: list[dict[str, Any] | None] = [None] * B
         run = ~self._pending
         clipped = [0] * B
         params: list[dict[str, float]] = [{}] * B
@@ -338,8 +337,7 @@ class TrainTuningVectorEnv(VectorEnv):
         for b in range(B):
             env = envs[b]
             if not run[b]:  # next-step autoreset
-                obs[b], info = self._reset_member(b, None, None)
-                infos = self._add_info(infos, info, b)
+                obs[b], infos[b] = self._reset_member(b, None, None)
                 continue
             env._steps += 1
             env._clipped_total += clipped[b]
@@ -351,9 +349,9 @@ class TrainTuningVectorEnv(VectorEnv):
             obs[b] = env._observe()
             terms[b], truncs[b] = term, trunc
             self._pending[b] = final
-            infos = self._add_info(infos, info, b)
+            infos[b] = info
         self._obs = obs.copy()
-        return obs, rewards, terms, truncs, infos
+        return obs, rewards, terms, truncs, merge_infos(infos, B)
 
     def close_extras(self, **kwargs: Any) -> None:
         for env in self.envs:
