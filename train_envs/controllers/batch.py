@@ -178,10 +178,11 @@ class _BatchPIDBase:
         """Member ``b``'s parameters (the full set, as ``get_params`` gives it)."""
         for n, val in params.items():
             self.p[n][b] = float(val)
-        self._derived()
+        self._derived(b)
 
-    def _derived(self) -> None:
-        """Per-member values derived from the parameters."""
+    def _derived(self, b: int | None = None) -> None:
+        """Per-member values derived from the parameters: of every member, or of member
+        ``b`` alone."""
 
     def _error(self, ix: np.ndarray, t: np.ndarray, s: np.ndarray, v: np.ndarray, kf: float):
         """(e, a_ref, filtered ė) with the filter state of members ``ix`` advanced."""
@@ -232,8 +233,12 @@ class BatchFuzzyPID(_BatchPIDBase):
         super().__init__(ref, params)
         self._derived()
 
-    def _derived(self) -> None:
+    def _derived(self, b: int | None = None) -> None:
         p = self.p
+        if b is not None:
+            for scale, name in zip(self.scales, ("dkp", "dki", "dkd"), strict=True):
+                scale[b] = p[name][b] / UNIVERSE
+            return
         self.scales = [p["dkp"] / UNIVERSE, p["dki"] / UNIVERSE, p["dkd"] / UNIVERSE]
 
     def compute(

@@ -122,8 +122,16 @@ class BatchDMC:
         du = nan if ref._du_step is None else ref._du_step
         self._cc = np.array([ref.M, jerk, du])
 
-    def _derived(self) -> None:
+    def _derived(self, b: int | None = None) -> None:
+        """The per-member values of the parameters ``p``: all members, or member ``b``
+        alone (the same values, without touching the others)."""
         col = self.p
+        if b is not None:
+            a_lo = min(col["alpha_min"][b].item(), col["alpha_max"][b].item())
+            self.a_lo[b] = a_lo
+            self.par[:, b] = [self.k_e[b], self.k_ec[b], self.h0[b], self.k_h[b],
+                              self.trend[b], a_lo, self.a_hi[b]]  # fmt: skip
+            return
         self.k_e, self.k_ec = col["k_e"], col["k_ec"]
         self.h0, self.k_h = col["h0"], col["k_h"]
         # (the lower bound min(α_min, α_max) of alpha_order="clip", as _on_params_changed)
@@ -139,7 +147,7 @@ class BatchDMC:
         """Member ``b``'s parameters (the full set, as ``get_params`` gives it)."""
         for n, val in params.items():
             self.p[n][b] = float(val)
-        self._derived()
+        self._derived(b)
 
     def reset(self, ix: np.ndarray | None = None) -> None:
         """Start an episode for members ``ix`` (all by default): the state of a reset
