@@ -169,30 +169,38 @@ def test_bad_algo_and_env_names_raise_clear_errors(tmp_path):
 
 
 # --------------------------------------------------------------- train / reload
-def test_native_vector_env_trains_the_same_policy_as_the_dummy_one(tmp_path):
-    """``vec="native"`` (the id's vector env through the SB3 adapter) gives PPO the
-    episodes of ``DummyVecEnv`` of single envs for the same seeds: the trained policies
-    are equal bit for bit, and the monitor files hold the same episodes (their returns
-    summed from the float32 rewards SB3 sees: to 1e-6 relative of Monitor's sums)."""
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_native_vector_env_trains_the_same_policy_as_the_dummy_one(tmp_path, algo):
+    """``vec="native"`` (the id's vector env through the SB3 adapter) gives the agent
+    the episodes of ``DummyVecEnv`` of single envs for the same seeds: the trained
+    policies are equal bit for bit, and the monitor files hold the same episodes (their
+    returns summed from the float32 rewards SB3 sees: to 1e-6 relative of Monitor's)."""
     import torch
-    from stable_baselines3 import PPO
 
+    from agents.hyperparameters import algo_class
+
+    hyper = {
+        "ppo": {"n_steps": 64, "batch_size": 64, "n_epochs": 2},
+        "sac": {"learning_starts": 32, "batch_size": 32},
+    }[algo]
     params, episodes = {}, {}
     for vec in ("dummy", "native"):
         res = train(
             env_id=PID_ID,
-            timesteps=256,
+            algo=algo,
+            timesteps=256 if algo == "ppo" else 128,
             seed=3,
             out=tmp_path / vec,
             n_envs=2,
             vec=vec,
-            hyperparams={"n_steps": 64, "batch_size": 64, "n_epochs": 2},
+            hyperparams=hyper,
             eval_freq=0,
             checkpoint_freq=0,
             tensorboard=False,
         )
-        assert res.timesteps == 256 and res.n_envs == 2
-        params[vec] = PPO.load(res.model_path, device="cpu").policy.state_dict()
+        assert res.n_envs == 2
+        model = algo_class(algo).load(res.model_path, device="cpu")
+        params[vec] = model.policy.state_dict()
         frames = [
             pd.read_csv(f, skiprows=1) for f in sorted((tmp_path / vec / "monitor").iterdir())
         ]
@@ -203,7 +211,7 @@ def test_native_vector_env_trains_the_same_policy_as_the_dummy_one(tmp_path):
     native_monitor = tmp_path / "native" / "monitor" / "native.monitor.csv"
     assert PID_ID in native_monitor.read_text().splitlines()[0]
     dummy, native = episodes["dummy"], episodes["native"]
-    assert len(dummy) == len(native) >= 4
+    assert len(dummy) == len(native) >= 2
     assert (dummy["l"] == native["l"]).all()
     np.testing.assert_allclose(native["r"], dummy["r"], rtol=1e-6)
 
