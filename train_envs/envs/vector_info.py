@@ -5,9 +5,8 @@ time: for every key it makes (on the key's first member) an array over the membe
 ``dtype`` the type of that first value for Python ``int``/``float``/``bool`` and numpy
 scalars, the value's own ``dtype`` and shape for an array, ``object`` otherwise; nested
 dicts recursively; ``final_obs`` always an object array -- writes the member's entry,
-and keeps a boolean mask ``_key`` of the members that have the key. Called once per
-member and key from Python, that is a sizeable part of a vector env step with tens of
-members (about a sixth of the DMC env's at B = 40).
+and keeps a boolean mask ``_key`` of the members that have the key: a Python call per
+member and key, which a vector env of tens of members pays at every step.
 
 :func:`merge_infos` gives the same dict -- keys in the same order, the same arrays,
 dtypes and masks -- in one pass per key: where every value of a key is a Python
