@@ -37,8 +37,10 @@ def _same(a, b) -> None:
             assert va.tobytes() == vb.tobytes(), key
 
 
-def _random_info(rng: np.random.Generator) -> dict | None:
-    if rng.random() < 0.15:
+def _random_info(rng: np.random.Generator, keys: list[str] | None = None) -> dict | None:
+    """A member's info; ``keys``: exactly these keys (in a shuffled order), else a random
+    subset (or None)."""
+    if keys is None and rng.random() < 0.15:
         return None
     pool = {
         "f": lambda: float(rng.normal()),
@@ -52,8 +54,10 @@ def _random_info(rng: np.random.Generator) -> dict | None:
         "nan": lambda: float("nan"),
         "final_obs": lambda: rng.normal(size=2),
         "cost": lambda: {"over": float(rng.random()), "n": int(rng.integers(3))},
+        "empty": lambda: {},
+        "one": lambda: {"only": float(rng.random())},
     }
-    keys = [k for k in pool if rng.random() < 0.7]
+    keys = [k for k in pool if rng.random() < 0.7] if keys is None else list(keys)
     rng.shuffle(keys)  # members list their keys in different orders
     return {k: pool[k]() for k in keys}
 
@@ -63,6 +67,20 @@ def test_merge_infos_equals_add_info_member_by_member(n):
     rng = np.random.default_rng(n)
     for _ in range(50):
         infos = [_random_info(rng) for _ in range(n)]
+        _same(merge_infos(infos, n), _reference(infos, n))
+
+
+@pytest.mark.parametrize("n", [1, 3, 40])
+def test_merge_infos_equals_add_info_when_every_member_has_the_same_keys(n):
+    rng = np.random.default_rng(100 + n)
+    names = ["f", "i", "b", "mixed", "np32", "npbool", "arr", "obj", "nan", "final_obs", "cost"]
+    for _ in range(50):
+        keys = [k for k in names + ["empty", "one"] if rng.random() < 0.6]
+        if not keys:
+            continue
+        infos = [_random_info(rng, keys) for _ in range(n)]
+        _same(merge_infos(infos, n), _reference(infos, n))
+        infos[int(rng.integers(n))] = None  # one member without an info
         _same(merge_infos(infos, n), _reference(infos, n))
 
 
