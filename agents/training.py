@@ -178,7 +178,8 @@ def make_training_env(
     VecNormalize keyword arguments (None: no normalisation); with ``training=False`` its
     statistics are frozen and rewards are not normalised (for evaluation envs).
     """
-    from stable_baselines3.common.vec_env import VecNormalize
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
     bare = check_env_id(env_id)
     if vec not in VEC_KINDS:
@@ -186,7 +187,17 @@ def make_training_env(
     if vec == "native":
         venv = _native_vec_env(bare, int(n_envs), seed, config, monitor_dir)
     else:
-        venv = _sb3_vec_env(bare, int(n_envs), vec, seed, config, monitor_dir)
+        kwargs: dict[str, Any] = {
+            "n_envs": int(n_envs),
+            "seed": seed,
+            "env_kwargs": {"config": dict(config or {})},
+            "monitor_dir": None if monitor_dir is None else str(monitor_dir),
+        }
+        if vec == "subproc":
+            kwargs.update(vec_env_cls=SubprocVecEnv, vec_env_kwargs={"start_method": "spawn"})
+        else:
+            kwargs.update(vec_env_cls=DummyVecEnv)
+        venv = make_vec_env(MODULE_PREFIX + bare, **kwargs)
     if normalize is not None:
         venv = VecNormalize(venv, **dict(normalize))
         if not training:
@@ -202,18 +213,14 @@ def _native_vec_env(
     config: Mapping[str, Any] | None,
     monitor_dir: str | Path | None,
 ) -> Any:
-    """The id's native vector env as an SB3 VecEnv (member ``i`` seeded ``seed + i`` at
-    the first reset, episode statistics by ``VecMonitor`` in ``monitor_dir``)."""
+    """The id's native vector env (every registered id has one) as an SB3 VecEnv: member
+    ``i`` seeded ``seed + i`` at the first reset, episode statistics by ``VecMonitor``
+    in ``monitor_dir``."""
     import gymnasium as gym
     from stable_baselines3.common.vec_env import VecMonitor
 
     from agents.vec_adapter import GymnasiumVecEnv
 
-    if gym.spec(bare).vector_entry_point is None:
-        raise ValueError(
-            f"vec 'native' needs an env id with a native vector env; {bare} has none "
-            "(use vec 'dummy' or 'subproc')"
-        )
     venv = GymnasiumVecEnv(
         gym.make_vec(
             bare,
@@ -228,31 +235,6 @@ def _native_vec_env(
         Path(monitor_dir).mkdir(parents=True, exist_ok=True)
         filename = str(Path(monitor_dir) / "native")
     return VecMonitor(venv, filename=filename)
-
-
-def _sb3_vec_env(
-    bare: str,
-    n_envs: int,
-    vec: str,
-    seed: int | None,
-    config: Mapping[str, Any] | None,
-    monitor_dir: str | Path | None,
-) -> Any:
-    """SB3's ``DummyVecEnv`` / ``SubprocVecEnv`` of single envs, each in a ``Monitor``."""
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
-
-    kwargs: dict[str, Any] = {
-        "n_envs": n_envs,
-        "seed": seed,
-        "env_kwargs": {"config": dict(config or {})},
-        "monitor_dir": None if monitor_dir is None else str(monitor_dir),
-    }
-    if vec == "subproc":
-        kwargs.update(vec_env_cls=SubprocVecEnv, vec_env_kwargs={"start_method": "spawn"})
-    else:
-        kwargs.update(vec_env_cls=DummyVecEnv)
-    return make_vec_env(MODULE_PREFIX + bare, **kwargs)
 
 
 def _freq_calls(steps: int, n_envs: int) -> int:

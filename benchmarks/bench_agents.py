@@ -31,7 +31,7 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from agents.training import TrainConfig, train
+from agents.training import VEC_KINDS, TrainConfig, train
 
 ENVS = ("TrainEnvs/Stopping001PID-v0", "TrainEnvs/Urban004-v0")
 CONFIGS = (("dummy", 1), ("subproc", 1), ("subproc", 2), ("dummy", 4), ("native", 4))
@@ -137,9 +137,9 @@ def ppo_env_share(env_id: str, timesteps: int, seed: int = 0) -> dict[str, float
 def _config(text: str) -> tuple[str, int]:
     """``vec:n`` -> ``(vec, n)`` (an argparse type: anything else is a usage error)."""
     vec, _, n = text.partition(":")
-    if vec not in ("dummy", "subproc", "native") or not n.isdigit() or int(n) < 1:
+    if vec not in VEC_KINDS or not n.isdigit() or int(n) < 1:
         raise argparse.ArgumentTypeError(
-            f"{text!r}: expected VEC:N, VEC one of dummy, subproc, native and N >= 1"
+            f"{text!r}: expected VEC:N, VEC one of {', '.join(VEC_KINDS)} and N >= 1"
         )
     return vec, int(n)
 
@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         type=_config,
         default=None,
         metavar="VEC:N",
-        help="vectorisations as vec:n_envs (vec: dummy, subproc, native); default "
+        help=f"vectorisations as vec:n_envs (vec: {', '.join(VEC_KINDS)}); default "
         + " ".join(f"{v}:{n}" for v, n in CONFIGS),
     )
     args = p.parse_args(argv)

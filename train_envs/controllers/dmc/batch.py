@@ -126,22 +126,21 @@ class BatchDMC:
         """The per-member values of the parameters ``p``: all members, or member ``b``
         alone (the same values, without touching the others)."""
         col = self.p
+        # (the lower bound min(α_min, α_max) of alpha_order="clip", as _on_params_changed)
         if b is not None:
-            a_lo = min(col["alpha_min"][b].item(), col["alpha_max"][b].item())
-            self.a_lo[b] = a_lo
-            self.par[:, b] = [self.k_e[b], self.k_ec[b], self.h0[b], self.k_h[b],
-                              self.trend[b], a_lo, self.a_hi[b]]  # fmt: skip
+            self.a_lo[b] = min(col["alpha_min"][b].item(), col["alpha_max"][b].item())
+            self.par[:, b] = [row[b] for row in self._par_rows]
             return
         self.k_e, self.k_ec = col["k_e"], col["k_ec"]
         self.h0, self.k_h = col["h0"], col["k_h"]
-        # (the lower bound min(α_min, α_max) of alpha_order="clip", as _on_params_changed)
         lo, hi = col["alpha_min"].tolist(), col["alpha_max"].tolist()
         self.a_lo = np.array([min(a, b) for a, b in zip(lo, hi, strict=True)])
         self.a_hi = col["alpha_max"]
         self.trend = col["alpha_trend"]
         #: rows k_e, k_ec, h0, k_h, γ, α_lo, α_hi (the stages' parameter matrix)
-        self.par = np.stack([self.k_e, self.k_ec, self.h0, self.k_h, self.trend, self.a_lo,
-                             self.a_hi])  # fmt: skip
+        self._par_rows = (self.k_e, self.k_ec, self.h0, self.k_h, self.trend, self.a_lo,
+                          self.a_hi)  # fmt: skip
+        self.par = np.stack(self._par_rows)
 
     def set_params(self, b: int, params: Mapping[str, float]) -> None:
         """Member ``b``'s parameters (the full set, as ``get_params`` gives it)."""
