@@ -237,6 +237,77 @@ def _stage_weights(blocks: list[tuple[np.ndarray | None, int, np.ndarray]]) -> _
     return _ResidualWeight(c + nt, d_all, cols_all, vals_all, W, Lw)
 
 
+class _SparseCost:
+    """The sparse form's cost products ``Ewᵀ W Ew`` (its upper triangle) and ``Ewᵀ W
+    Eθ`` from the non-zeros of the residual maps ``Ew`` (on the variables) and ``Eθ``.
+
+    Every residual row of the sparse form touches one or two variables (an output of
+    one stage, an increment, an input) and at most a few entries of θ, so each entry of
+    the products is a sum of a few terms: with ``W``'s diagonal head ``d`` (its rows
+    ``r < c0``), entry ``(i, j)`` is ``Σ_r (Ew_ri d_r) Ew_rj`` over the rows ``r`` where
+    both factors are non-zero, summed in increasing ``r`` (:func:`numpy.bincount`), and
+    the dense tail of ``W`` (a full terminal weight) multiplies only its own rows'
+    non-zero columns.  The pairs of non-zeros are found once per pair of maps; a weight
+    change is then two gathers, two products and two bincounts instead of two dense
+    products of the full maps.  BLAS sums those in its own order, with fused
+    multiply-adds: the two agree to rounding, and bit for bit where the maps' entries
+    are ±1 (selection and differencing, as in the train MPCs) and an entry has at most
+    two terms.
+    """
+
+    __slots__ = ("oe", "nt", "_rows", "_vals", "_hw", "_hq", "_ew", "_eth")
+
+    def __init__(self, Ew: np.ndarray, Eth: np.ndarray) -> None:
+        self.oe, self.nt = Ew.shape[1], Eth.shape[1]
+        self._ew, self._eth = Ew, Eth
+        r, c = np.nonzero(Ew)  # row-major: by row, then column
+        rt, ct = np.nonzero(Eth)
+        n = Ew.shape[0]
+        self._rows, self._vals = r, Ew[r, c]
+        ptr = np.searchsorted(r, np.arange(n + 1))
+        ptr_t = np.searchsorted(rt, np.arange(n + 1))
+        k = np.arange(r.size)
+        # pairs (a, b), a <= b, of non-zeros of one row: Ew's upper triangle (i <= j)
+        cnt = ptr[r + 1] - k
+        a = np.repeat(k, cnt)
+        b = a + np.arange(a.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        self._hw = (a, b, c[a] * self.oe + c[b], r[a])
+        # pairs (a, t) of a non-zero of Ew and one of Eth in the same row
+        cnt_t = ptr_t[r + 1] - ptr_t[r]
+        a_t = np.repeat(k, cnt_t)
+        t = (
+            np.repeat(ptr_t[r], cnt_t)
+            + np.arange(a_t.size)
+            - np.repeat(np.cumsum(cnt_t) - cnt_t, cnt_t)
+        )
+        self._hq = (a_t, Eth[rt[t], ct[t]], c[a_t] * self.nt + ct[t], r[a_t])
+
+    def products(self, wt: _ResidualWeight) -> tuple[np.ndarray, np.ndarray]:
+        """``(triu(Ewᵀ W Ew), Ewᵀ W Eθ)`` for the residual weight ``wt``, as ``(oe, oe)``
+        and ``(oe, nt)`` arrays."""
+        oe, nt = self.oe, self.nt
+        c0 = wt._d.size
+        kh = np.searchsorted(self._rows, c0)  # the non-zeros in the diagonal head's rows
+        ad = self._vals[:kh] * wt._d[self._rows[:kh]]  # Ew_ri d_r
+        a, b, tgt, ra = self._hw
+        ka = np.searchsorted(ra, c0)  # the pairs of the diagonal head's rows
+        Hu = np.bincount(tgt[:ka], ad[a[:ka]] * self._vals[b[:ka]], minlength=oe * oe)
+        a_t, v_t, tgt_t, rt = self._hq
+        kq = np.searchsorted(rt, c0)
+        Hq = np.bincount(tgt_t[:kq], ad[a_t[:kq]] * v_t[:kq], minlength=oe * nt)
+        # (float even without pairs: numpy gives an empty bincount integers)
+        Hu = Hu.astype(float, copy=False).reshape(oe, oe)
+        Hq = Hq.astype(float, copy=False).reshape(oe, nt)
+        if c0 < wt.n:  # the dense tail: its rows' non-zero columns only
+            Et, Tt = self._ew[c0:], self._eth[c0:]
+            cz = np.flatnonzero(np.any(Et != 0.0, axis=0))
+            EtW = Et[:, cz].T @ wt._tail
+            Ht = EtW @ Et[:, cz]
+            Hu[np.ix_(cz, cz)] += np.triu(0.5 * (Ht + Ht.T))
+            Hq[cz] += EtW @ Tt
+        return Hu, Hq
+
+
 @dataclass(frozen=True)
 class _Structure:
     """Weight-independent condensed matrices of one model (``θ``: the data vector).
@@ -479,6 +550,7 @@ class _AssemblyMixin:
                     Eth_s.append(-sel("r", nt)[-p:])
             self._Ew = np.vstack(Ew_parts)
             self._Eth_s = np.vstack(Eth_s)
+            self._sparse_cost = _SparseCost(self._Ew, self._Eth_s)
             # theta-dependent offsets: dynamics, input and rate rows (the state and
             # output rows act on the variables directly and have constant bounds)
             Cth = np.vstack([Cth_dyn, Uth[:nz]] + ([dUth] if n_du else []))
@@ -555,11 +627,9 @@ class _AssemblyMixin:
             Hw_q = Fq  # q of the non-slack variables
             Lth = Lth_c
         else:
-            Ew = self._Ew
-            EwW = wt.right(Ew.T)
-            Hw = EwW @ Ew
-            Pd[:oe, :oe] = 2.0 * np.triu(0.5 * (Hw + Hw.T))
-            Hw_q = 2.0 * EwW @ self._Eth_s
+            Hu, Hq = self._sparse_cost.products(wt)
+            Pd[:oe, :oe] = 2.0 * Hu
+            Hw_q = 2.0 * Hq
             Lth = wt.factor(self._Eth_s)
         self._P_dense = Pd
 
