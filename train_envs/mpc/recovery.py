@@ -11,8 +11,9 @@ runs (after a primal-infeasibility verdict steps 1 and 3 only, step 3 briefly):
 1. the exact finish (:meth:`_RecoveryMixin._exact`): DAQP, the dual active-set solver
    for small dense QPs of Arnström, Bemporad and Axehill (IEEE TAC 2022), on the full
    QP, warm-started from OSQP's iterate (in the sparse form first the KKT system of
-   the active set the iterate names, one sparse LU), accepted only when the full QP's
-   KKT conditions hold to :data:`KKT_TOL`;
+   the active set the iterate names, one sparse LU; a larger condensed QP first in the
+   decision alone, its slacks as DAQP's soft constraints), accepted only when the full
+   QP's KKT conditions hold to :data:`KKT_TOL`;
 2. OSQP continued from the last iterate with tolerance :math:`\max(10^{-4}, 10\epsilon)`
    and OSQP's polishing;
 3. failing that, an exact primal-dual active-set iteration (semismooth Newton) on the
@@ -52,6 +53,14 @@ _FINISH_EXACT = (7, 2)
 KKT_TOL = 1e-9
 _DAQP_OPTIMAL = 1
 _DAQP_INFEASIBLE = -1
+#: the size (variables, slacks included) from which a condensed QP goes to DAQP with its
+#: slacks as soft constraints (:meth:`_RecoveryMixin._exact_soft`): below it DAQP on the
+#: full QP costs less than the reduced form's setup (on the Yizhuang MPC's QPs, 30
+#: variables, ~100 µs a finish either way; on the RSMPC's and SEMPC's, 44-76, the reduced
+#: form ~1.9x faster; docs/benchmarks.md)
+_SOFT_MIN_VARS = 40
+#: DAQP's exit flag of an optimum that violates soft constraints
+_DAQP_SOFT_OPTIMAL = 2
 _PRIMAL_INFEASIBLE_NAME = "primal infeasible"
 #: the status of a verified KKT point (the exact finish, the refinement, polishing)
 _POLISHED = "solved (polished)"
@@ -99,6 +108,47 @@ def _kkt_point(
     if np.any((lam > tol_d) & (gap_hi > tol_hi)) or np.any((lam < -tol_d) & (gap_lo > tol_lo)):
         return None
     return w, lam, float(0.5 * (w @ Pw) + q @ w)
+
+
+def _soft_structure(host: Any, A: np.ndarray) -> tuple | None:
+    """The fixed parts of :meth:`_RecoveryMixin._exact_soft`'s QP for the condensed
+    ``A`` and the current soft penalties: ``(hard, jl, rows, sense, rho, w_lin)`` --
+    the hard rows in DAQP's order (first those that are the identity on ``z``, DAQP's
+    simple bounds: the input rows, else the rate rows, else none), the slacks with a
+    lower-side row, DAQP's constraint matrix (the general hard rows, then the soft upper
+    rows, in ``z``), the constraint kinds (soft rows 8) and the soft rows' reciprocal
+    quadratic and linear weights ``1 / (2 gamma)``, ``rho``; None when a soft row has
+    no quadratic penalty. Made once per ``A`` and penalties (the assembly replaces
+    ``_A_dense`` on a model change and the penalty arrays when they change, and writes
+    into neither)."""
+    rho_s, gam = host._rho_s, host._gamma_s
+    cached = getattr(host, "_soft_split", None)
+    if cached is not None and cached[0] is A and cached[1] is rho_s and cached[2] is gam:
+        return cached[3]
+    nz, nh, ns = host._nz, host._row_soft, host._ns
+    split = None
+    if np.all(gam > 0.0):
+        eye = np.eye(nz)
+        simple = np.zeros(0, dtype=np.intp)
+        for start in (0, nz):
+            blk = A[start : start + nz]
+            if start + nz <= nh and np.array_equal(blk[:, :nz], eye) and not blk[:, nz:].any():
+                simple = np.arange(start, start + nz)
+                break
+        general = np.setdiff1d(np.arange(nh), simple)
+        rows = np.ascontiguousarray(np.vstack([A[general, :nz], A[nh : nh + ns, :nz]]))
+        hard = np.concatenate([simple, general])
+        nk = hard.size + ns
+        sense = np.zeros(nk, dtype=np.int32)
+        sense[hard.size :] = 8
+        rho = np.ones(nk)
+        rho[hard.size :] = 0.5 / gam
+        w_lin = np.zeros(nk)
+        w_lin[hard.size :] = rho_s
+        jl = np.asarray(host._soft2_slack, dtype=np.intp)
+        split = (hard, jl, rows, sense, rho, w_lin)
+    host._soft_split = (A, rho_s, gam, split)
+    return split
 
 
 #: singular active-set KKT systems in a row after which a sparse-form problem stops
@@ -186,7 +236,10 @@ class _RecoveryMixin:
         signs of OSQP's duals and the rows nearly active at ``x``.  In the sparse form
         the active set OSQP's iterate names is tried first
         (:meth:`_active_set_kkt`: DAQP's dense setup dominates on those larger QPs);
-        DAQP runs when that point fails the checks below.  Accepted only when
+        DAQP runs when that point fails the checks below.  A condensed QP of at least
+        :data:`_SOFT_MIN_VARS` variables goes to DAQP without its slacks, as soft
+        constraints (:meth:`_exact_soft`: the same optimum, about half the time); the
+        full QP when that fails.  Accepted only when
         DAQP reports an optimum and the KKT conditions of the full QP hold to
         :data:`KKT_TOL`: stationarity ``|Pw + q + A'y| <= tol (1 + max|q|)``,
         feasibility of every row within ``tol (1 + |bound|)`` of its bound and
@@ -201,10 +254,15 @@ class _RecoveryMixin:
         lo = np.maximum(self._l, -_BIG)
         hi = np.minimum(self._u, _BIG)
         eq = hi - lo <= 1e-12 * (1.0 + np.abs(hi))
-        if getattr(self, "_sparse", False) and self.__dict__.get("_kkt_singular", 0) < _KKT_TRIES:
+        sparse = getattr(self, "_sparse", False)
+        if sparse and self.__dict__.get("_kkt_singular", 0) < _KKT_TRIES:
             out = self._active_set_kkt(x, y, P, A, q, lo, hi, eq)
             if out is not None:
                 return out
+        if not sparse and P.shape[0] >= _SOFT_MIN_VARS and getattr(self, "_row_input", 1) == 0:
+            red = self._exact_soft(x, y, P, A, q, lo, hi, eq)
+            if red is not None:
+                return red
         sense = np.where(eq, 5, 0).astype(np.int32)
         w, _, flag, info = daqp.solve(
             P, q, A, hi, lo, sense, primal_tol=KKT_TOL, primal_start=x, dual_start=y
@@ -215,6 +273,83 @@ class _RecoveryMixin:
         lam = np.asarray(info["lam"])
         out = _kkt_point(P, A, q, lo, hi, w, lam)
         return 0 if out is None else out
+
+    def _exact_soft(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        P: np.ndarray,
+        A: np.ndarray,
+        q: np.ndarray,
+        lo: np.ndarray,
+        hi: np.ndarray,
+        eq: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, float] | int | None:
+        r"""Condensed form: the QP solved by DAQP in the decision ``z`` alone, the slacks
+        left to DAQP's soft constraints (the same optimum, a QP of ``nz`` variables and
+        no ``eps >= 0`` rows instead of ``nz + ns`` variables).
+
+        Soft row ``k`` (``L_k <= g_k z <= U_k``, slack ``eps_k``) costs ``rho_k eps_k +
+        gamma_k eps_k²`` in the full QP; DAQP's soft constraint with linear weight
+        ``w = rho_k`` and reciprocal quadratic weight ``1 / (2 gamma_k)`` charges the
+        same for the same violation (``eps_k = max(0, g_k z - U_k, L_k - g_k z)`` at
+        the optimum), so the minimisers in ``z`` coincide. Input (or rate) rows that
+        are the identity on ``z`` become DAQP's simple bounds. The full QP's point is
+        rebuilt: ``w = [z; eps]``, the soft rows' duals from DAQP's multiplier ``mu_k``
+        (upper row ``max(mu_k, 0)``, lower row ``min(mu_k, 0)``) and the ``eps >= 0``
+        rows' from stationarity in ``eps_k``, ``max(mu,0) - min(mu,0) - rho_k - 2
+        gamma_k eps_k``, and accepted under the full QP's KKT conditions
+        (:func:`_kkt_point`) as :meth:`_exact`'s own. DAQP's infeasibility verdict is
+        final (the soft rows can always be met with slacks, so the full QP is
+        infeasible exactly when the reduced one is). None (the full QP goes to DAQP)
+        when a soft row has no quadratic penalty, a soft row is an equality, DAQP's
+        setup fails or it stops otherwise, or the point fails the checks.
+        """
+        st = _soft_structure(self, A)
+        if st is None:
+            return None
+        hard, jl, rows, sense, rho, w_lin = st
+        nz, ns, nh, nlu = self._nz, self._ns, self._row_soft, self._n_bound_row
+        nk = hard.size
+        soft_up = slice(nh, nh + ns)
+        L = np.full(ns, -_BIG)
+        L[jl] = lo[nh + ns : nlu]
+        U = hi[soft_up]
+        if jl.size and np.any(U[jl] - L[jl] <= 1e-12 * (1.0 + np.abs(U[jl]))):
+            return None  # a two-sided soft row with equal bounds
+        eq_h = eq[hard]
+        if eq_h.any():
+            sense = sense.copy()
+            sense[:nk][eq_h] = 5
+        dual = np.concatenate([y[hard], y[soft_up]])
+        dual[nk + jl] += y[nh + ns : nlu]  # one multiplier per soft row: upper + lower
+        m = daqp.Model()
+        m.settings = {"primal_tol": KKT_TOL}
+        setup_flag, _ = m.setup(
+            np.ascontiguousarray(P[:nz, :nz]), q[:nz], rows,
+            np.concatenate([hi[hard], U]), np.concatenate([lo[hard], L]), sense,
+            primal_start=x[:nz], dual_start=dual,
+        )  # fmt: skip
+        if setup_flag < 0:  # e.g. H not positive definite
+            return None
+        m.soft_weights(rho_l=rho, rho_u=rho, w_l=w_lin, w_u=w_lin)
+        z, _, flag, info = m.solve()
+        if flag == _DAQP_INFEASIBLE:
+            return _DAQP_INFEASIBLE
+        if flag != _DAQP_OPTIMAL and flag != _DAQP_SOFT_OPTIMAL:
+            return None
+        z = np.asarray(z)
+        g = np.dot(rows[rows.shape[0] - ns :], z)  # the soft rows
+        eps = np.maximum(np.maximum(g - U, L - g), 0.0)
+        mu_all = np.asarray(info["lam"])
+        mu = mu_all[nk:]
+        lam = np.zeros(A.shape[0])
+        lam[hard] = mu_all[:nk]
+        mu_up, mu_lo = np.maximum(mu, 0.0), np.minimum(mu, 0.0)
+        lam[soft_up] = mu_up
+        lam[nh + ns : nlu] = mu_lo[jl]
+        lam[nlu:] = mu_up - mu_lo - self._rho_s - 2.0 * self._gamma_s * eps
+        return _kkt_point(P, A, q, lo, hi, np.concatenate([z, eps]), lam)
 
     def _active_set_kkt(
         self,
